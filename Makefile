@@ -1,0 +1,39 @@
+# Two commands set everything up on a fresh machine: `make demo` and `make test`.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+# A CPU wheel of torch 2.13.0 lies in /opt/wheels on the project's machines; pin it first so that
+# no later step pulls a multi-GB CUDA build. Elsewhere pip takes it from the registry.
+WHEELS  := $(wildcard /opt/wheels)
+FIND    := $(if $(WHEELS),--find-links $(WHEELS),)
+TORCH   ?= torch==2.13.0
+
+.PHONY: setup demo test lint bench clean
+
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/pip install -q $(FIND) "$(TORCH)"
+	$(BIN)/pip install -q $(FIND) -e ".[dev]"
+	touch $@
+
+setup: $(VENV)/.installed
+
+demo: setup
+	$(BIN)/edr-run
+
+test: setup
+	$(BIN)/ruff check src tests
+	$(BIN)/ruff format --check src tests
+	$(BIN)/python -m pytest -q
+
+lint: setup
+	$(BIN)/ruff check --fix src tests
+	$(BIN)/ruff format src tests
+
+bench: setup
+	$(BIN)/edr-bench
+
+clean:
+	rm -rf $(VENV) outputs .pytest_cache

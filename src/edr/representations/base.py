@@ -1,0 +1,85 @@
+"""The one interface every temporal representation shares, and the input checks they all use.
+
+A representation takes a clip ``(B, T, C, H, W)`` (uint8 or float intensities, C = 1 gray or
+3 RGB) and returns ``(B, T_out, C_out, H, W)`` float32, with ``C_out = out_channels(C)`` and
+``T_out = out_frames(T)``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+# ITU-R BT.601 luma weights, the ones OpenCV's RGB2GRAY uses.
+GRAY_WEIGHTS = (0.299, 0.587, 0.114)
+
+
+class Representation(nn.Module):
+    """Base class: clip in, channels out. Subclasses implement ``forward`` and the two sizes."""
+
+    def out_channels(self, in_channels: int) -> int:
+        """Channels of the output for a clip with ``in_channels`` channels."""
+        raise NotImplementedError
+
+    def out_frames(self, frames: int) -> int:
+        """Frames of the output for a clip of ``frames`` frames (differences lose one)."""
+        return frames
+
+
+def check_clip(clip: torch.Tensor, *, min_frames: int = 1, name: str = "clip") -> None:
+    """Raise ``ValueError`` unless ``clip`` is a (B, T, C, H, W) clip of legal intensities."""
+    if not isinstance(clip, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(clip).__name__}")
+    if clip.dim() != 5:
+        raise ValueError(
+            f"{name} must have shape (B, T, C, H, W), got {tuple(clip.shape)} (rank {clip.dim()})"
+        )
+    _check_channels_and_values(clip, channel_dim=2, name=name)
+    if clip.shape[1] < min_frames:
+        raise ValueError(f"{name} has T={clip.shape[1]} frames; at least {min_frames} are needed")
+
+
+def check_frame(frame: torch.Tensor, *, name: str = "frame") -> None:
+    """Raise ``ValueError`` unless ``frame`` is a (B, C, H, W) frame of legal intensities."""
+    if not isinstance(frame, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(frame).__name__}")
+    if frame.dim() != 4:
+        raise ValueError(
+            f"{name} must have shape (B, C, H, W), got {tuple(frame.shape)} (rank {frame.dim()})"
+        )
+    _check_channels_and_values(frame, channel_dim=1, name=name)
+
+
+def _check_channels_and_values(x: torch.Tensor, *, channel_dim: int, name: str) -> None:
+    if x.shape[channel_dim] not in (1, 3):
+        raise ValueError(
+            f"{name} must have 1 (gray) or 3 (RGB) channels in dim {channel_dim}, "
+            f"got {x.shape[channel_dim]}"
+        )
+    if x.numel() == 0:
+        raise ValueError(f"{name} is empty: shape {tuple(x.shape)}")
+    if x.dtype == torch.uint8:
+        return
+    if not x.is_floating_point():
+        raise ValueError(f"{name} must be uint8 or floating point, got {x.dtype}")
+    # One reduction catches both: min() is NaN if any element is NaN.
+    low = x.detach().min()
+    if torch.isnan(low):
+        raise ValueError(f"{name} contains NaN")
+    if low < 0:
+        raise ValueError(f"{name} has negative intensities (min {low.item():.4g}); expected >= 0")
+
+
+def to_float(x: torch.Tensor) -> torch.Tensor:
+    """uint8 -> float32 on the same 0..255 scale; float stays as it is."""
+    return x.float() if x.dtype == torch.uint8 else x
+
+
+def to_gray(x: torch.Tensor, channel_dim: int) -> torch.Tensor:
+    """RGB -> luma along ``channel_dim`` (kept, size 1); 1-channel input is returned as float."""
+    x = to_float(x)
+    if x.shape[channel_dim] == 1:
+        return x
+    r, g, b = x.unbind(channel_dim)
+    w_r, w_g, w_b = GRAY_WEIGHTS
+    return (w_r * r + w_g * g + w_b * b).unsqueeze(channel_dim)

@@ -1,0 +1,258 @@
+"""EDR: the thresholded exponential moving average of intensity returns (the paper's Eq. 1-3).
+
+Per pixel x, per timescale k with half-life tau_k (frames)::
+
+    alpha_k  = 1 - 2 ** (-1 / tau_k)
+    ema_k(t) = ema_k(t-1) + alpha_k * (I(t) - ema_k(t-1)),   ema_k(0) = I(0)
+    ratio form  R_k = (I(t) / ema_k(t)) ** beta_k         thresholds 1 + nu_on, 1 - nu_off
+    log form    r_k = beta_k * ln(I(t) / ema_k(t))         thresholds ln(1 + nu_on), ln(1 - nu_off)
+    soft        ON = relu(R - on_th),  OFF = relu(off_th - R)
+    hard        ON = [R > on_th],      OFF = [R < off_th]
+
+with ``I = intensity + eps``. ``combine="sum"`` first sums the K weighted log-ratios (as the
+authors' code did) and thresholds once; ``combine="separate"`` gives each timescale its own
+ON/OFF pair. Output channel order: for each input channel c, for each timescale k, [ON, OFF].
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Literal, NamedTuple
+
+import numpy as np
+import torch
+from torch import nn
+
+from edr.representations import kernels
+from edr.representations.base import Representation, check_clip, check_frame, to_float, to_gray
+
+Scalars = float | Sequence[float]
+
+
+class EDRState(NamedTuple):
+    """Streaming state of :class:`EDR`: the EMA of every channel and timescale."""
+
+    ema: torch.Tensor  # (B, C, K, H, W) float32, intensities + eps
+
+
+def _per_timescale(value: Scalars, k: int, name: str) -> torch.Tensor:
+    """A scalar or one value per timescale -> (k,) float32."""
+    values = [float(value)] * k if isinstance(value, int | float) else [float(v) for v in value]
+    if len(values) != k:
+        raise ValueError(f"{name} has {len(values)} values; give one, or one per timescale ({k})")
+    return torch.tensor(values, dtype=torch.float32)
+
+
+class EDR(Representation):
+    """Retinomorphic event-driven representation, as a learnable layer and a streaming filter.
+
+    ``forward``: (B, T, C, H, W) -> (B, T, C' * 2 * K', H, W), C' = 1 if ``color="gray"``
+    else C, K' = 1 if ``combine="sum"`` else K. ``step``: the same, one frame at a time.
+    Under ``torch.no_grad()`` on the CPU (uint8 or float32 input) both use a fused numba kernel.
+    """
+
+    def __init__(
+        self,
+        half_lives: Sequence[float] = (3.8,),
+        beta: Scalars = 1.0,
+        nu_on: Scalars = 0.05,
+        nu_off: Scalars = 0.05,
+        threshold: Literal["soft", "hard"] = "soft",
+        return_form: Literal["ratio", "log"] = "ratio",
+        combine: Literal["separate", "sum"] = "separate",
+        eps: float = 1.0,
+        learnable: bool = False,
+        color: Literal["keep", "gray"] = "keep",
+        fast: bool = True,
+    ) -> None:
+        super().__init__()
+        half_lives = [float(h) for h in half_lives]
+        if not half_lives or min(half_lives) <= 0:
+            raise ValueError(f"half_lives must be positive frame counts, got {half_lives}")
+        for arg, value, allowed in (
+            ("threshold", threshold, ("soft", "hard")),
+            ("return_form", return_form, ("ratio", "log")),
+            ("combine", combine, ("separate", "sum")),
+            ("color", color, ("keep", "gray")),
+        ):
+            if value not in allowed:
+                raise ValueError(f"{arg} must be one of {allowed}, got {value!r}")
+        if eps < 0:
+            raise ValueError(f"eps must be >= 0, got {eps}")
+        k = len(half_lives)
+        k_out = 1 if combine == "sum" else k
+        if combine == "sum" and not (isinstance(nu_on, int | float) and isinstance(nu_off, int | float)):
+            raise ValueError('combine="sum" thresholds once: nu_on and nu_off must be scalars')
+        nu_on_t = _per_timescale(nu_on, k_out, "nu_on")
+        nu_off_t = _per_timescale(nu_off, k_out, "nu_off")
+        if nu_on_t.min() < 0 or nu_off_t.min() < 0 or nu_off_t.max() >= 1:
+            raise ValueError(f"need nu_on >= 0 and 0 <= nu_off < 1, got {nu_on}, {nu_off}")
+
+        self.threshold, self.return_form, self.combine, self.color = (
+            threshold,
+            return_form,
+            combine,
+            color,
+        )
+        self.eps, self.learnable, self.fast = float(eps), learnable, fast
+        self.k = k
+        log_tau = torch.tensor([math.log(h) for h in half_lives], dtype=torch.float32)
+        # tau = exp(log_tau) keeps every half-life positive while it learns.
+        for name, value in (
+            ("log_tau", log_tau),
+            ("beta", _per_timescale(beta, k, "beta")),
+            ("nu_on", nu_on_t),
+            ("nu_off", nu_off_t),
+        ):
+            if learnable:
+                self.register_parameter(name, nn.Parameter(value))
+            else:
+                self.register_buffer(name, value)
+
+    # ---- sizes -------------------------------------------------------------------------------
+    def out_channels(self, in_channels: int) -> int:
+        c = 1 if self.color == "gray" else in_channels
+        return c * 2 * (1 if self.combine == "sum" else self.k)
+
+    @property
+    def half_lives(self) -> torch.Tensor:
+        return self.log_tau.exp()
+
+    @property
+    def alpha(self) -> torch.Tensor:
+        """(K,) EMA weights, alpha_k = 1 - 2 ** (-1 / tau_k)."""
+        return 1.0 - torch.pow(2.0, -1.0 / self.half_lives)
+
+    def thresholds(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(K',) ON and OFF thresholds in the domain of ``return_form``."""
+        on, off = 1.0 + self.nu_on, 1.0 - self.nu_off
+        if self.return_form == "log":
+            return torch.log(on), torch.log(off)
+        return on, off
+
+    # ---- public API --------------------------------------------------------------------------
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        """(B, T, C, H, W) uint8 or float -> (B, T, C' * 2 * K', H, W) float."""
+        check_clip(frames, name="frames")
+        if self._can_fuse(frames):
+            b, t, _, h, w = frames.shape
+            ema = torch.empty((b, self._channels(frames.shape[2]), self.k, h, w))
+            restart = torch.ones(b, dtype=torch.bool)
+            return self._fused(frames, ema, restart)
+        state, outs = None, []
+        for t in range(frames.shape[1]):
+            out_t, state = self.step(frames[:, t], state)
+            outs.append(out_t)
+        return torch.stack(outs, dim=1)  # (B, T, C'*2*K', H, W)
+
+    def step(
+        self,
+        frame: torch.Tensor,
+        state: EDRState | None = None,
+        reset: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, EDRState]:
+        """One frame (B, C, H, W) -> (events (B, C'*2*K', H, W), new state).
+
+        ``state=None`` starts every row from this frame; ``reset`` (B,) bool restarts the rows
+        where it is set. On the fused path the state's tensor is updated in place and returned.
+        """
+        check_frame(frame)
+        b, c, h, w = frame.shape
+        shape = (b, self._channels(c), self.k, h, w)
+        if state is not None and tuple(state.ema.shape) != shape:
+            raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")
+        if reset is not None:
+            reset = torch.as_tensor(reset, dtype=torch.bool, device=frame.device).reshape(-1)
+            if reset.numel() != b:
+                raise ValueError(f"reset must have one flag per batch row ({b}), got {reset.numel()}")
+        if self._can_fuse(frame):
+            if state is None:
+                ema = torch.empty(shape, dtype=torch.float32)
+                restart = torch.ones(b, dtype=torch.bool)
+            else:
+                ema = state.ema.detach().to(torch.float32).contiguous()
+                restart = reset.cpu() if reset is not None else torch.zeros(b, dtype=torch.bool)
+            out = self._fused(frame.unsqueeze(1), ema, restart)
+            return out[:, 0], EDRState(ema)
+        return self._step_torch(frame, state, reset)
+
+    # ---- the two paths -----------------------------------------------------------------------
+    def _channels(self, in_channels: int) -> int:
+        return 1 if self.color == "gray" else in_channels
+
+    def _intensity(self, frame: torch.Tensor) -> torch.Tensor:
+        """(B, C, H, W) -> (B, C', H, W) float intensities + eps."""
+        x = to_gray(frame, channel_dim=1) if self.color == "gray" else to_float(frame)
+        return x + self.eps
+
+    def _step_torch(
+        self, frame: torch.Tensor, state: EDRState | None, reset: torch.Tensor | None
+    ) -> tuple[torch.Tensor, EDRState]:
+        intensity = self._intensity(frame).unsqueeze(2)  # (B, C', 1, H, W)
+        b, c, _, h, w = intensity.shape
+        if state is None:
+            prev = intensity.expand(b, c, self.k, h, w)
+        elif reset is not None:
+            prev = torch.where(reset.view(b, 1, 1, 1, 1), intensity, state.ema)
+        else:
+            prev = state.ema
+        alpha = self.alpha.to(intensity).view(1, 1, self.k, 1, 1)
+        ema = prev + alpha * (intensity - prev)  # (B, C', K, H, W)
+        ratio = intensity / ema
+        beta = self.beta.to(intensity).view(1, 1, self.k, 1, 1)
+        if self.combine == "sum":
+            summed = (beta * torch.log(ratio)).sum(dim=2, keepdim=True)  # (B, C', 1, H, W)
+            response = summed if self.return_form == "log" else torch.exp(summed)
+        elif self.return_form == "log":
+            response = beta * torch.log(ratio)
+        else:
+            response = ratio**beta
+        on_th, off_th = (v.to(intensity).view(1, 1, -1, 1, 1) for v in self.thresholds())
+        if self.threshold == "hard":
+            on, off = (response > on_th).to(response.dtype), (response < off_th).to(response.dtype)
+        else:
+            on, off = torch.relu(response - on_th), torch.relu(off_th - response)
+        events = torch.stack((on, off), dim=3)  # (B, C', K', 2, H, W)
+        return events.reshape(b, -1, h, w), EDRState(ema)
+
+    def _can_fuse(self, x: torch.Tensor) -> bool:
+        needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.learnable)
+        return (
+            self.fast
+            and not needs_grad
+            and x.device.type == "cpu"
+            and x.dtype in (torch.uint8, torch.float32)
+        )
+
+    def _fused(self, frames: torch.Tensor, ema: torch.Tensor, restart: torch.Tensor) -> torch.Tensor:
+        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``."""
+        b, t, c_in, h, w = frames.shape
+        c, k = ema.shape[1], ema.shape[2]
+        k_out = 1 if self.combine == "sum" else k
+        out = torch.empty((b, t, c * k_out * 2, h, w), dtype=torch.float32)
+        on_th, off_th = self.thresholds()
+        with torch.no_grad():
+            kernels.edr_kernel(
+                frames.contiguous().view(b, t, c_in, h * w).numpy(),
+                self.color == "gray" and c_in == 3,
+                np.float32(self.eps),
+                self.alpha.detach().cpu().numpy(),
+                self.beta.detach().cpu().numpy(),
+                on_th.detach().cpu().numpy(),
+                off_th.detach().cpu().numpy(),
+                self.return_form == "log",
+                self.threshold == "hard",
+                self.combine == "sum",
+                ema.view(b, c, k, h * w).numpy(),
+                restart.numpy(),
+                out.view(b, t, c, k_out, 2, h * w).numpy(),
+            )
+        return out
+
+    def extra_repr(self) -> str:
+        taus = [round(v, 3) for v in self.half_lives.tolist()]
+        return (
+            f"half_lives={taus}, threshold={self.threshold}, return_form={self.return_form}, "
+            f"combine={self.combine}, eps={self.eps}, learnable={self.learnable}, color={self.color}"
+        )

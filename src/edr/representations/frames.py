@@ -1,0 +1,84 @@
+"""Frame-based rows of Table 2: raw frames (FDR) and frame differences (GrayDiff, RGBDiff)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import torch
+
+from edr.representations import kernels
+from edr.representations.base import Representation, check_clip, to_float, to_gray
+
+
+class FDR(Representation):
+    """Frame-driven representation: the frames themselves, RGB or gray, times ``scale``.
+
+    (B, T, C, H, W) -> (B, T, C', H, W), C' = 1 if ``color="gray"`` else C.
+    """
+
+    def __init__(self, color: Literal["keep", "gray"] = "keep", scale: float = 1 / 255) -> None:
+        super().__init__()
+        if color not in ("keep", "gray"):
+            raise ValueError(f"color must be 'keep' or 'gray', got {color!r}")
+        self.color, self.scale = color, float(scale)
+
+    def out_channels(self, in_channels: int) -> int:
+        return 1 if self.color == "gray" else in_channels
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        check_clip(frames, name="frames")
+        x = to_gray(frames, channel_dim=2) if self.color == "gray" else to_float(frames)
+        return x * self.scale
+
+
+class GrayDiff(Representation):
+    """Differences of consecutive gray frames: (B, T, C, H, W) -> (B, T-1, 1, H, W).
+
+    ``scale`` maps the 0..255 range of uint8 video to -1..1. Under ``torch.no_grad()`` on the
+    CPU (uint8 or float32) it runs a fused numba kernel, as fast as EDR's, for a fair race.
+    """
+
+    def __init__(self, scale: float = 1 / 255, fast: bool = True) -> None:
+        super().__init__()
+        self.scale, self.fast = float(scale), fast
+
+    def out_channels(self, in_channels: int) -> int:
+        return 1
+
+    def out_frames(self, frames: int) -> int:
+        return frames - 1
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        check_clip(frames, min_frames=2, name="frames")
+        fusable = frames.device.type == "cpu" and frames.dtype in (torch.uint8, torch.float32)
+        if self.fast and fusable and not (torch.is_grad_enabled() and frames.requires_grad):
+            b, t, c, h, w = frames.shape
+            out = torch.empty((b, t - 1, 1, h, w))
+            kernels.gray_diff_kernel(
+                frames.contiguous().view(b, t, c, h * w).numpy(),
+                np.float32(self.scale),
+                out.view(b, t - 1, 1, h * w).numpy(),
+            )
+            return out
+        gray = to_gray(frames, channel_dim=2)  # (B, T, 1, H, W)
+        return self.scale * (gray[:, 1:] - gray[:, :-1])
+
+
+class RGBDiff(Representation):
+    """Differences of consecutive frames per colour channel: -> (B, T-1, C, H, W)."""
+
+    def __init__(self, scale: float = 1 / 255) -> None:
+        super().__init__()
+        self.scale = float(scale)
+
+    def out_channels(self, in_channels: int) -> int:
+        return in_channels
+
+    def out_frames(self, frames: int) -> int:
+        return frames - 1
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        check_clip(frames, min_frames=2, name="frames")
+        x = to_float(frames)
+        return self.scale * (x[:, 1:] - x[:, :-1])

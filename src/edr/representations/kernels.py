@@ -1,0 +1,142 @@
+"""Fused CPU kernels (numba) for inference: one pass over the pixels per frame, no temporaries.
+
+Both kernels split the pixels of each clip into chunks that fit in L1/L2 and give every
+(batch row, chunk) to one thread, which then walks the frames in order: the EMA state of its
+chunk stays in cache for the whole clip. They compute the same float32 expressions, in the same
+order, as the torch code in ``edr.py`` and ``frames.py``, so the two paths agree to rounding.
+Compiled code is cached on disk (``cache=True``): only the first call on a machine compiles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from edr.representations.base import GRAY_WEIGHTS
+
+CHUNK = 4096  # pixels per work item: 16 KiB of float32 state per timescale
+
+W_R, W_G, W_B = (np.float32(w) for w in GRAY_WEIGHTS)
+ZERO = np.float32(0.0)
+ONE = np.float32(1.0)
+
+
+@njit(inline="always")
+def _load_intensity(x, b, t, c, lo, n, gray, eps, dst):
+    """dst[:n] = intensity of channel c (or luma, when ``gray``) of x[b, t] at pixels lo.. + eps."""
+    if gray:
+        xr = x[b, t, 0, lo : lo + n]
+        xg = x[b, t, 1, lo : lo + n]
+        xb = x[b, t, 2, lo : lo + n]
+        for i in range(n):
+            dst[i] = (W_R * np.float32(xr[i]) + W_G * np.float32(xg[i]) + W_B * np.float32(xb[i])) + eps
+    else:
+        xc = x[b, t, c, lo : lo + n]
+        for i in range(n):
+            dst[i] = np.float32(xc[i]) + eps
+
+
+@njit(parallel=True, cache=True)
+def edr_kernel(x, gray, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k, ema, restart, out):
+    """Run EDR over the frames of ``x``, carrying ``ema`` in place.
+
+    x       (B, T, C_in, P) uint8 or float32, intensities without eps
+    gray    convert 3 input channels to one luma channel
+    alpha, beta  (K,) float32
+    on_th, off_th  (K_out,) thresholds already in the domain of ``log_form``
+    ema     (B, C, K, P) float32 state, updated in place
+    restart (B,) bool: rows whose EMA restarts from the first frame of ``x``
+    out     (B, T, C, K_out, 2, P) float32, K_out = 1 if ``sum_k`` else K; last-but-one axis ON, OFF
+    """
+    n_batch, n_frames, _, n_pix = x.shape
+    n_chan, n_k = ema.shape[1], ema.shape[2]
+    n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    for job in prange(n_batch * n_chunks):
+        b = job // n_chunks
+        lo = (job % n_chunks) * CHUNK
+        n = min(CHUNK, n_pix - lo)
+        intensity = np.empty(n, np.float32)
+        acc = np.empty(n, np.float32)
+        for t in range(n_frames):
+            for c in range(n_chan):
+                _load_intensity(x, b, t, c, lo, n, gray, eps, intensity)
+                if t == 0 and restart[b]:
+                    for k in range(n_k):
+                        ema[b, c, k, lo : lo + n] = intensity
+                if sum_k:
+                    acc[:] = ZERO
+                for k in range(n_k):
+                    em = ema[b, c, k, lo : lo + n]
+                    a = alpha[k]
+                    bk = beta[k]
+                    if sum_k:
+                        for i in range(n):
+                            e = em[i] + a * (intensity[i] - em[i])
+                            em[i] = e
+                            acc[i] += bk * np.log(intensity[i] / e)
+                        continue
+                    on = out[b, t, c, k, 0, lo : lo + n]
+                    off = out[b, t, c, k, 1, lo : lo + n]
+                    hi_th = on_th[k]
+                    lo_th = off_th[k]
+                    if not log_form and bk == ONE and not hard:
+                        # The paper's default (ratio form, beta 1, soft): the hot loop.
+                        for i in range(n):
+                            e = em[i] + a * (intensity[i] - em[i])
+                            em[i] = e
+                            r = intensity[i] / e
+                            on[i] = r - hi_th if r > hi_th else ZERO
+                            off[i] = lo_th - r if r < lo_th else ZERO
+                    else:
+                        for i in range(n):
+                            e = em[i] + a * (intensity[i] - em[i])
+                            em[i] = e
+                            ratio = intensity[i] / e
+                            if log_form:
+                                r = bk * np.log(ratio)
+                            elif bk == ONE:
+                                r = ratio
+                            else:
+                                r = ratio**bk
+                            _threshold(r, hi_th, lo_th, hard, on, off, i)
+                if sum_k:
+                    on = out[b, t, c, 0, 0, lo : lo + n]
+                    off = out[b, t, c, 0, 1, lo : lo + n]
+                    for i in range(n):
+                        r = acc[i] if log_form else np.exp(acc[i])
+                        _threshold(r, on_th[0], off_th[0], hard, on, off, i)
+
+
+@njit(inline="always")
+def _threshold(r, hi_th, lo_th, hard, on, off, i):
+    if hard:
+        on[i] = ONE if r > hi_th else ZERO
+        off[i] = ONE if r < lo_th else ZERO
+    else:
+        on[i] = r - hi_th if r > hi_th else ZERO
+        off[i] = lo_th - r if r < lo_th else ZERO
+
+
+@njit(parallel=True, cache=True)
+def gray_diff_kernel(x, scale, out):
+    """Consecutive differences of luma, ``out[:, t] = scale * (gray(x[:, t+1]) - gray(x[:, t]))``.
+
+    x   (B, T, C_in, P) uint8 or float32, C_in 1 or 3
+    out (B, T-1, 1, P) float32
+    """
+    n_batch, n_frames, n_in, n_pix = x.shape
+    gray = n_in == 3
+    n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    for job in prange(n_batch * n_chunks):
+        b = job // n_chunks
+        lo = (job % n_chunks) * CHUNK
+        n = min(CHUNK, n_pix - lo)
+        prev = np.empty(n, np.float32)
+        cur = np.empty(n, np.float32)
+        _load_intensity(x, b, 0, 0, lo, n, gray, ZERO, prev)
+        for t in range(1, n_frames):
+            _load_intensity(x, b, t, 0, lo, n, gray, ZERO, cur)
+            o = out[b, t - 1, 0, lo : lo + n]
+            for i in range(n):
+                o[i] = scale * (cur[i] - prev[i])
+                prev[i] = cur[i]

@@ -1,0 +1,92 @@
+"""Dense optical flow rows of Table 2 (OpenCV): Farneback and TV-L1; Brox is not yet here.
+
+Each maps a clip to the flow between consecutive frames, (B, T, C, H, W) -> (B, T-1, 2, H, W),
+channels (dx, dy) in pixels per frame, computed on 8-bit gray frames (float input is taken on
+the 0..255 scale, rounded and clipped).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import torch
+
+from edr.representations.base import Representation, check_clip, to_gray
+
+
+def gray_uint8(frames: torch.Tensor) -> np.ndarray:
+    """(B, T, C, H, W) uint8 or float on 0..255 -> (B, T, H, W) uint8 luma."""
+    if frames.dtype == torch.uint8 and frames.shape[2] == 1:
+        return frames[:, :, 0].contiguous().numpy()
+    gray = to_gray(frames.detach().cpu(), channel_dim=2)[:, :, 0]
+    return gray.round().clamp(0, 255).to(torch.uint8).numpy()
+
+
+class OpticalFlow(Representation):
+    """Base of the flow representations: subclasses give ``_pair(prev, next) -> (H, W, 2)``."""
+
+    def out_channels(self, in_channels: int) -> int:
+        return 2
+
+    def out_frames(self, frames: int) -> int:
+        return frames - 1
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        check_clip(frames, min_frames=2, name="frames")
+        gray = gray_uint8(frames)  # (B, T, H, W)
+        b, t, h, w = gray.shape
+        flow = np.empty((b, t - 1, 2, h, w), np.float32)
+        for i in range(b):
+            for j in range(t - 1):
+                flow[i, j] = self._pair(gray[i, j], gray[i, j + 1]).transpose(2, 0, 1)
+        return torch.from_numpy(flow).to(frames.device)
+
+    def _pair(self, prev: np.ndarray, nxt: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class Farneback(OpticalFlow):
+    """Gunnar Farneback's polynomial-expansion flow, ``cv2.calcOpticalFlowFarneback``."""
+
+    def __init__(
+        self,
+        pyr_scale: float = 0.5,
+        levels: int = 3,
+        winsize: int = 15,
+        iterations: int = 3,
+        poly_n: int = 5,
+        poly_sigma: float = 1.2,
+    ) -> None:
+        super().__init__()
+        self.params = (pyr_scale, levels, winsize, iterations, poly_n, poly_sigma, 0)
+
+    def _pair(self, prev: np.ndarray, nxt: np.ndarray) -> np.ndarray:
+        return cv2.calcOpticalFlowFarneback(prev, nxt, None, *self.params)
+
+
+class TVL1(OpticalFlow):
+    """Dual TV-L1 flow (Zach et al.), ``cv2.optflow.DualTVL1OpticalFlow`` from opencv-contrib."""
+
+    def __init__(self, tau: float = 0.25, lambda_: float = 0.15, scales: int = 5, warps: int = 5):
+        super().__init__()
+        if not hasattr(cv2, "optflow"):
+            raise RuntimeError(
+                "TV-L1 needs cv2.optflow, which only opencv-contrib-python-headless ships; "
+                "uninstall opencv-python(-headless) and install the contrib wheel"
+            )
+        self._tvl1 = cv2.optflow.DualTVL1OpticalFlow_create(
+            tau=tau, lambda_=lambda_, nscales=scales, warps=warps
+        )
+
+    def _pair(self, prev: np.ndarray, nxt: np.ndarray) -> np.ndarray:
+        return self._tvl1.calc(prev, nxt, None)
+
+
+class BroxFlow(OpticalFlow):
+    """Brox et al. (2004) flow, the paper's strongest baseline: not yet available here."""
+
+    def __init__(self, **_: object) -> None:
+        raise NotImplementedError(
+            "Brox optical flow is not yet available in this suite (it needs a GPU flow library "
+            "and is planned in a later issue); use representation=tvl1 or representation=farneback"
+        )
