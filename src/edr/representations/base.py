@@ -7,6 +7,7 @@ A representation takes a clip ``(B, T, C, H, W)`` (uint8 or float intensities, C
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -24,6 +25,48 @@ class Representation(nn.Module):
     def out_frames(self, frames: int) -> int:
         """Frames of the output for a clip of ``frames`` frames (differences lose one)."""
         return frames
+
+    def preview(self, out_t: torch.Tensor) -> np.ndarray:
+        """One output frame (C_out, H, W) -> an (H, W, 3) picture in [0, 1] for people to look at.
+
+        Default: the channel mean as gray, 0.5 = zero, scaled by its largest magnitude.
+        """
+        signed = out_t.detach().float().mean(0).cpu().numpy()
+        scale = max(float(np.abs(signed).max()), 1e-8)
+        return np.repeat((0.5 + 0.5 * signed / scale)[..., None], 3, axis=2)
+
+
+class FlowRepresentation(Representation):
+    """A motion field between consecutive frames: (B, T, C, H, W) -> (B, T-1, 2, H, W), (dx, dy)."""
+
+    def out_channels(self, in_channels: int) -> int:
+        return 2
+
+    def out_frames(self, frames: int) -> int:
+        return frames - 1
+
+    def preview(self, out_t: torch.Tensor) -> np.ndarray:
+        return flow_picture(out_t.detach().float().cpu().numpy())
+
+
+def on_off_picture(on: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """ON (H, W) in green, OFF (H, W) in red, on black, each scaled by its own maximum."""
+    picture = np.zeros((*on.shape, 3), np.float32)
+    picture[..., 1] = on / max(float(on.max()), 1e-8)
+    picture[..., 0] = off / max(float(off.max()), 1e-8)
+    return picture
+
+
+def flow_picture(flow: np.ndarray) -> np.ndarray:
+    """Flow (2, H, W) -> the usual colour wheel: hue = direction, brightness = speed."""
+    import cv2
+
+    magnitude, angle = cv2.cartToPolar(flow[0].astype(np.float32), flow[1].astype(np.float32))
+    hsv = np.zeros((*flow.shape[1:], 3), np.float32)
+    hsv[..., 0] = np.degrees(angle)  # OpenCV's float HSV takes hue in degrees
+    hsv[..., 1] = 1.0
+    hsv[..., 2] = magnitude / max(float(magnitude.max()), 1e-8)
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
 
 
 def check_clip(clip: torch.Tensor, *, min_frames: int = 1, name: str = "clip") -> None:

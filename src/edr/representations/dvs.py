@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from numba import njit
 
-from edr.representations.base import Representation, check_clip, to_gray
+from edr.representations.base import Representation, check_clip, on_off_picture, to_gray
 
 EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
@@ -83,7 +83,11 @@ class DVSSimulator:
         if min(mismatch, refractory_us, shot_noise_hz) < 0 or fps <= 0 or eps <= 0:
             raise ValueError("mismatch, refractory_us, shot_noise_hz must be >= 0; fps, eps > 0")
         self.threshold_on, self.threshold_off = threshold_on, threshold_off
-        self.mismatch, self.refractory_us, self.shot_noise_hz = mismatch, refractory_us, shot_noise_hz
+        self.mismatch, self.refractory_us, self.shot_noise_hz = (
+            mismatch,
+            refractory_us,
+            shot_noise_hz,
+        )
         self.fps, self.eps, self.seed = fps, eps, seed
 
     @property
@@ -191,6 +195,10 @@ class DVSCamera(Representation):
 
     def out_frames(self, frames: int) -> int:
         return frames - 1
+
+    def preview(self, out_t: torch.Tensor) -> np.ndarray:
+        counts = out_t.detach().float().cpu().numpy()
+        return on_off_picture(counts[0], counts[1])
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, min_frames=2, name="frames")

@@ -25,7 +25,14 @@ import torch
 from torch import nn
 
 from edr.representations import kernels
-from edr.representations.base import Representation, check_clip, check_frame, to_float, to_gray
+from edr.representations.base import (
+    Representation,
+    check_clip,
+    check_frame,
+    on_off_picture,
+    to_float,
+    to_gray,
+)
 
 Scalars = float | Sequence[float]
 
@@ -82,7 +89,9 @@ class EDR(Representation):
             raise ValueError(f"eps must be >= 0, got {eps}")
         k = len(half_lives)
         k_out = 1 if combine == "sum" else k
-        if combine == "sum" and not (isinstance(nu_on, int | float) and isinstance(nu_off, int | float)):
+        if combine == "sum" and not (
+            isinstance(nu_on, int | float) and isinstance(nu_off, int | float)
+        ):
             raise ValueError('combine="sum" thresholds once: nu_on and nu_off must be scalars')
         nu_on_t = _per_timescale(nu_on, k_out, "nu_on")
         nu_off_t = _per_timescale(nu_off, k_out, "nu_off")
@@ -114,6 +123,11 @@ class EDR(Representation):
     def out_channels(self, in_channels: int) -> int:
         c = 1 if self.color == "gray" else in_channels
         return c * 2 * (1 if self.combine == "sum" else self.k)
+
+    def preview(self, out_t: torch.Tensor) -> np.ndarray:
+        """ON events (summed over channels and timescales) in green, OFF in red."""
+        pairs = out_t.detach().float().cpu().reshape(-1, 2, *out_t.shape[-2:]).sum(0).numpy()
+        return on_off_picture(pairs[0], pairs[1])
 
     @property
     def half_lives(self) -> torch.Tensor:
@@ -165,7 +179,9 @@ class EDR(Representation):
         if reset is not None:
             reset = torch.as_tensor(reset, dtype=torch.bool, device=frame.device).reshape(-1)
             if reset.numel() != b:
-                raise ValueError(f"reset must have one flag per batch row ({b}), got {reset.numel()}")
+                raise ValueError(
+                    f"reset must have one flag per batch row ({b}), got {reset.numel()}"
+                )
         if self._can_fuse(frame):
             if state is None:
                 ema = torch.empty(shape, dtype=torch.float32)
@@ -225,7 +241,9 @@ class EDR(Representation):
             and x.dtype in (torch.uint8, torch.float32)
         )
 
-    def _fused(self, frames: torch.Tensor, ema: torch.Tensor, restart: torch.Tensor) -> torch.Tensor:
+    def _fused(
+        self, frames: torch.Tensor, ema: torch.Tensor, restart: torch.Tensor
+    ) -> torch.Tensor:
         """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``."""
         b, t, c_in, h, w = frames.shape
         c, k = ema.shape[1], ema.shape[2]

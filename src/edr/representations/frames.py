@@ -26,6 +26,11 @@ class FDR(Representation):
     def out_channels(self, in_channels: int) -> int:
         return 1 if self.color == "gray" else in_channels
 
+    def preview(self, out_t: torch.Tensor) -> np.ndarray:
+        image = out_t.detach().float().cpu().permute(1, 2, 0).numpy()
+        image = image / max(float(image.max()), 1e-8)
+        return np.repeat(image, 3, axis=2) if image.shape[2] == 1 else image
+
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, name="frames")
         x = to_gray(frames, channel_dim=2) if self.color == "gray" else to_float(frames)

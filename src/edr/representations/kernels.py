@@ -29,7 +29,9 @@ def _load_intensity(x, b, t, c, lo, n, gray, eps, dst):
         xg = x[b, t, 1, lo : lo + n]
         xb = x[b, t, 2, lo : lo + n]
         for i in range(n):
-            dst[i] = (W_R * np.float32(xr[i]) + W_G * np.float32(xg[i]) + W_B * np.float32(xb[i])) + eps
+            dst[i] = (
+                W_R * np.float32(xr[i]) + W_G * np.float32(xg[i]) + W_B * np.float32(xb[i])
+            ) + eps
     else:
         xc = x[b, t, c, lo : lo + n]
         for i in range(n):

@@ -14,7 +14,7 @@ import av
 import numpy as np
 import torch
 
-from edr.representations.base import Representation, check_clip, to_float
+from edr.representations.base import FlowRepresentation, check_clip, to_float
 
 
 def rasterize_motion_vectors(mvs: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -71,7 +71,7 @@ def encode_clip(frames: np.ndarray, codec: str = "mpeg4", gop: int = 250) -> io.
     return buffer
 
 
-class MPEGFlow(Representation):
+class MPEGFlow(FlowRepresentation):
     """Codec motion vectors as flow: (B, T, C, H, W) -> (B, T-1, 2, H, W).
 
     A clip of raw frames is first encoded (``codec``, P-frames only), then decoded with its
@@ -82,12 +82,6 @@ class MPEGFlow(Representation):
     def __init__(self, codec: str = "mpeg4") -> None:
         super().__init__()
         self.codec = codec
-
-    def out_channels(self, in_channels: int) -> int:
-        return 2
-
-    def out_frames(self, frames: int) -> int:
-        return frames - 1
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, min_frames=2, name="frames")

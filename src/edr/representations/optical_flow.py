@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import torch
 
-from edr.representations.base import Representation, check_clip, to_gray
+from edr.representations.base import FlowRepresentation, check_clip, to_gray
 
 
 def gray_uint8(frames: torch.Tensor) -> np.ndarray:
@@ -22,14 +22,8 @@ def gray_uint8(frames: torch.Tensor) -> np.ndarray:
     return gray.round().clamp(0, 255).to(torch.uint8).numpy()
 
 
-class OpticalFlow(Representation):
-    """Base of the flow representations: subclasses give ``_pair(prev, next) -> (H, W, 2)``."""
-
-    def out_channels(self, in_channels: int) -> int:
-        return 2
-
-    def out_frames(self, frames: int) -> int:
-        return frames - 1
+class OpticalFlow(FlowRepresentation):
+    """Base of the pairwise flows: subclasses give ``_pair(prev, next) -> (H, W, 2)``."""
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, min_frames=2, name="frames")

@@ -1,0 +1,65 @@
+"""Decoding and writing video files with OpenCV; every failure names the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+
+def read_video(
+    path: str | Path,
+    *,
+    max_frames: int | None = None,
+    size: tuple[int, int] | None = None,
+) -> torch.Tensor:
+    """Decode a video to (T, 3, H, W) uint8 RGB; ``size=(width, height)`` resizes each frame."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"video not found: {path}")
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise ValueError(f"cannot open video {path}: not a video OpenCV can decode")
+    frames = []
+    try:
+        while max_frames is None or len(frames) < max_frames:
+            ok, bgr = capture.read()
+            if not ok:
+                break
+            if size is not None:
+                bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
+            frames.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+    finally:
+        capture.release()
+    if not frames:
+        raise ValueError(f"video {path} has no decodable frames (corrupt or empty file)")
+    return torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()  # (T, 3, H, W)
+
+
+def write_video(path: str | Path, frames: np.ndarray | torch.Tensor, fps: float = 25.0) -> Path:
+    """Write (T, 3, H, W) or (T, H, W) uint8 frames as an MJPG .avi (the UCF-101/KTH container)."""
+    path = Path(path)
+    array = frames.numpy() if isinstance(frames, torch.Tensor) else np.asarray(frames)
+    if array.dtype != np.uint8 or array.ndim not in (3, 4) or len(array) == 0:
+        raise ValueError(
+            f"frames must be non-empty uint8 (T, 3, H, W) or (T, H, W), got {array.shape}"
+        )
+    if array.ndim == 3:
+        array = np.repeat(array[:, None], 3, axis=1)
+    t, _, h, w = array.shape
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    if not writer.isOpened():
+        raise ValueError(f"cannot write video {path}")
+    try:
+        for i in range(t):
+            writer.write(
+                cv2.cvtColor(np.ascontiguousarray(array[i].transpose(1, 2, 0)), cv2.COLOR_RGB2BGR)
+            )
+    finally:
+        writer.release()
+    tmp.replace(path)
+    return path

@@ -1,0 +1,1 @@
+"""Tasks: what one run does with its representation (and, later, its backbone)."""

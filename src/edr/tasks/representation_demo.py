@@ -1,0 +1,107 @@
+"""The representation demo: every representation on one video, drawn side by side.
+
+Writes ``representations.png`` (one frame of each, like the paper's Figure 3a) and
+``pixel_response.png`` (one pixel's intensity and each representation's channels over time,
+like Figure 3b) into the run directory.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import torch
+from tqdm import tqdm
+
+from edr.data import read_video, synthetic_scene
+from edr.representations import Representation
+
+
+def representation_demo(
+    *,
+    out_dir: Path,
+    seed: int,
+    representations: dict[str, Representation],
+    video: str | None = None,
+    frames: int = 48,
+    height: int = 120,
+    width: int = 160,
+    show_frame: int | None = None,
+    pixel: tuple[int, int] | None = None,
+) -> dict[str, Any]:
+    """Run each representation on the clip and draw them; returns timings and figure paths."""
+    # ---- the clip ----------------------------------------------------------------------------
+    if video:
+        clip = read_video(video, max_frames=frames, size=(width, height))
+        source = str(video)
+    else:
+        clip = synthetic_scene(frames, height, width, seed=seed)
+        source = f"generated scene (seed {seed})"
+    t_count = clip.shape[0]
+    if t_count < 2:
+        raise ValueError(f"the demo needs at least 2 frames, {source} gave {t_count}")
+    gray = clip.float().mean(1)  # (T, H, W)
+    if pixel is None:
+        flat = int(gray.std(0).argmax())
+        pixel = (flat // clip.shape[3], flat % clip.shape[3])
+    y, x = int(pixel[0]), int(pixel[1])
+    shown = t_count // 2 if show_frame is None else int(show_frame)
+
+    # ---- every representation ----------------------------------------------------------------
+    outputs: dict[str, torch.Tensor] = {}
+    metrics: dict[str, Any] = {"data/source": source, "data/frames": t_count}
+    for name, rep in (bar := tqdm(representations.items(), desc="representations", unit="rep")):
+        bar.set_postfix_str(name)
+        start = time.perf_counter()
+        with torch.no_grad():
+            outputs[name] = rep(clip.unsqueeze(0))[0]  # (T', C_out, H, W)
+        seconds = time.perf_counter() - start
+        metrics[f"fps/{name}"] = round(t_count / seconds, 1)
+
+    # ---- Figure 3a: one frame of each ----------------------------------------------------------
+    panels = [("video", clip[shown].permute(1, 2, 0).numpy() / 255.0)]
+    for name, out in outputs.items():
+        # Outputs of T-1 frames describe the step into frame t at index t-1.
+        index = min(max(shown - (t_count - out.shape[0]), 0), out.shape[0] - 1)
+        panels.append((name, representations[name].preview(out[index])))
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.4 * len(panels), 2.4))
+    for ax, (title, picture) in zip(axes, panels, strict=True):
+        ax.imshow(picture.clip(0, 1))
+        ax.set_title(title, fontsize=9)
+        ax.axis("off")
+    axes[0].plot([x], [y], "c+", markersize=10)
+    fig.suptitle(f"frame {shown} of {source}", fontsize=9)
+    fig.tight_layout()
+    picture_path = out_dir / "representations.png"
+    fig.savefig(picture_path, dpi=120)
+    plt.close(fig)
+
+    # ---- Figure 3b: one pixel over time ------------------------------------------------------
+    fig, axes = plt.subplots(
+        len(outputs) + 1, 1, figsize=(7, 1.3 * (len(outputs) + 1)), sharex=True
+    )
+    axes[0].plot(range(t_count), gray[:, y, x].numpy(), "k")
+    axes[0].set_ylabel("intensity", fontsize=8)
+    for ax, (name, out) in zip(axes[1:], outputs.items(), strict=True):
+        steps = range(t_count - out.shape[0], t_count)
+        for c in range(min(out.shape[1], 6)):
+            ax.plot(steps, out[:, c, y, x].numpy(), label=f"ch{c}")
+        ax.set_ylabel(name, fontsize=8)
+        ax.legend(fontsize=6, loc="upper right", ncol=6)
+    axes[-1].set_xlabel("frame")
+    fig.suptitle(f"pixel (y={y}, x={x})", fontsize=9)
+    fig.tight_layout()
+    response_path = out_dir / "pixel_response.png"
+    fig.savefig(response_path, dpi=120)
+    plt.close(fig)
+
+    print(f"figures: {picture_path}\n         {response_path}")
+    metrics.update(
+        {"figure/representations": str(picture_path), "figure/pixel": str(response_path)}
+    )
+    return metrics
