@@ -106,6 +106,7 @@ class EDR(Representation):
         )
         self.eps, self.learnable, self.fast = float(eps), learnable, fast
         self.k = k
+        self._param_cache: tuple[tuple, tuple] | None = None
         log_tau = torch.tensor([math.log(h) for h in half_lives], dtype=torch.float32)
         # tau = exp(log_tau) keeps every half-life positive while it learns.
         for name, value in (
@@ -152,8 +153,7 @@ class EDR(Representation):
         if self._can_fuse(frames):
             b, t, _, h, w = frames.shape
             ema = torch.empty((b, self._channels(frames.shape[2]), self.k, h, w))
-            restart = torch.ones(b, dtype=torch.bool)
-            return self._fused(frames, ema, restart)
+            return self._fused(frames, ema, np.ones(b, np.bool_))
         state, outs = None, []
         for t in range(frames.shape[1]):
             out_t, state = self.step(frames[:, t], state)
@@ -185,10 +185,10 @@ class EDR(Representation):
         if self._can_fuse(frame):
             if state is None:
                 ema = torch.empty(shape, dtype=torch.float32)
-                restart = torch.ones(b, dtype=torch.bool)
+                restart = np.ones(b, np.bool_)
             else:
                 ema = state.ema.detach().to(torch.float32).contiguous()
-                restart = reset.cpu() if reset is not None else torch.zeros(b, dtype=torch.bool)
+                restart = reset.cpu().numpy() if reset is not None else np.zeros(b, np.bool_)
             out = self._fused(frame.unsqueeze(1), ema, restart)
             return out[:, 0], EDRState(ema)
         return self._step_torch(frame, state, reset)
@@ -241,31 +241,39 @@ class EDR(Representation):
             and x.dtype in (torch.uint8, torch.float32)
         )
 
-    def _fused(
-        self, frames: torch.Tensor, ema: torch.Tensor, restart: torch.Tensor
-    ) -> torch.Tensor:
+    def _kernel_params(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(alpha, beta, on_th, off_th) as float32 arrays, recomputed only when a parameter changes."""
+        params = (self.log_tau, self.beta, self.nu_on, self.nu_off)
+        key = tuple((p.data_ptr(), p._version) for p in params)
+        if self._param_cache is None or self._param_cache[0] != key:
+            with torch.no_grad():
+                values = (self.alpha, self.beta, *self.thresholds())
+                arrays = tuple(v.detach().cpu().to(torch.float32).numpy().copy() for v in values)
+            self._param_cache = (key, arrays)
+        return self._param_cache[1]
+
+    def _fused(self, frames: torch.Tensor, ema: torch.Tensor, restart: np.ndarray) -> torch.Tensor:
         """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``."""
         b, t, c_in, h, w = frames.shape
         c, k = ema.shape[1], ema.shape[2]
         k_out = 1 if self.combine == "sum" else k
         out = torch.empty((b, t, c * k_out * 2, h, w), dtype=torch.float32)
-        on_th, off_th = self.thresholds()
-        with torch.no_grad():
-            kernels.edr_kernel(
-                frames.contiguous().view(b, t, c_in, h * w).numpy(),
-                self.color == "gray" and c_in == 3,
-                np.float32(self.eps),
-                self.alpha.detach().cpu().numpy(),
-                self.beta.detach().cpu().numpy(),
-                on_th.detach().cpu().numpy(),
-                off_th.detach().cpu().numpy(),
-                self.return_form == "log",
-                self.threshold == "hard",
-                self.combine == "sum",
-                ema.view(b, c, k, h * w).numpy(),
-                restart.numpy(),
-                out.view(b, t, c, k_out, 2, h * w).numpy(),
-            )
+        alpha, beta, on_th, off_th = self._kernel_params()
+        kernels.edr_kernel(
+            frames.contiguous().view(b, t, c_in, h * w).numpy(),
+            self.color == "gray" and c_in == 3,
+            np.float32(self.eps),
+            alpha,
+            beta,
+            on_th,
+            off_th,
+            self.return_form == "log",
+            self.threshold == "hard",
+            self.combine == "sum",
+            ema.view(b, c, k, h * w).numpy(),
+            restart,
+            out.view(b, t, c, k_out, 2, h * w).numpy(),
+        )
         return out
 
     def extra_repr(self) -> str:

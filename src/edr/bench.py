@@ -1,0 +1,215 @@
+"""``edr-bench``: every representation timed side by side, in one run, on the same clip.
+
+    edr-bench                       # generated 320x240 clip, all cores
+    edr-bench --video clip.avi      # a real decoded video (resized to 320x240)
+    edr-bench --threads 1 --quick   # one thread, fewer repeats
+
+Median throughput over ``--repeats`` timed calls after a warm-up call (which also compiles the
+numba kernels). Writes ``results/bench/speed_<host>_<time>.json`` and ``paper/table2_speed.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numba
+import torch
+from tqdm import tqdm
+
+from edr.allocator import keep_freed_memory
+from edr.data import read_video, synthetic_scene
+from edr.records import git_revision, machine_info, write_json_atomic
+from edr.representations import (
+    EDR,
+    FDR,
+    TVL1,
+    DVSCamera,
+    EDRState,
+    Farneback,
+    GrayDiff,
+    Representation,
+    RGBDiff,
+    decode_motion_vectors,
+)
+from edr.representations.mpeg_flow import encode_clip
+from edr.tables import write_speed_table
+
+K3 = (1.0, 3.8, 8.0)
+
+
+@dataclass
+class Row:
+    """One measured line of the speed table."""
+
+    name: str  # the representation, as Table 2 names it
+    implementation: str  # what ran: fused kernel, torch ops, OpenCV, ...
+    frames: int  # input frames per timed call
+    frame_size: str  # "320x240" or "32 x 84x84"
+    median_s: float  # median seconds per call
+    fps: float  # input frames per second (all batch rows counted)
+
+
+def time_call(fn: Callable[[], object], repeats: int, warmup: int = 3) -> float:
+    """Median wall time of ``fn()`` over ``repeats`` calls after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def stream(edr: EDR, frames: torch.Tensor) -> None:
+    """Feed (B, T, C, H, W) through ``edr.step`` one frame at a time, as an agent would."""
+    state: EDRState | None = None
+    for t in range(frames.shape[1]):
+        _, state = edr.step(frames[:, t], state)
+
+
+@dataclass
+class Job:
+    """One row to time: ``call()`` consumes ``frames`` input frames of ``frame_size``."""
+
+    name: str
+    implementation: str
+    call: Callable[[], Any]
+    frames: int
+    frame_size: str
+
+
+def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]:
+    """Every row: clip (1, T, 3, H, W) uint8 video, atari (N, T, 1, 84, 84) uint8 frames."""
+    t, h, w = clip.shape[1], clip.shape[3], clip.shape[4]
+    size = f"{w}x{h}"
+    few = clip[:, :flow_frames]
+    encoded = encode_clip(clip[0].permute(0, 2, 3, 1).numpy()).getvalue()
+
+    def whole(name: str, implementation: str, rep: Representation, x: torch.Tensor = clip) -> Job:
+        return Job(name, implementation, lambda: rep(x), x.shape[1], size)
+
+    gray = EDR(color="gray")
+    return [
+        whole("EDR K=1 soft gray", "fused numba kernel", gray),
+        Job(
+            "EDR K=1 soft gray, streaming",
+            "fused kernel, step() per frame",
+            lambda: stream(gray, clip),
+            t,
+            size,
+        ),
+        whole("EDR K=3 soft gray", "fused numba kernel", EDR(half_lives=K3, color="gray")),
+        whole("EDR K=1 soft RGB", "fused numba kernel", EDR()),
+        whole("EDR K=1 soft gray", "torch ops (autograd path)", EDR(color="gray", fast=False)),
+        whole("GrayDiff", "fused numba kernel", GrayDiff()),
+        whole("GrayDiff", "torch ops", GrayDiff(fast=False)),
+        whole("RGBDiff", "torch ops", RGBDiff()),
+        whole("FDR (RGB frames)", "torch ops", FDR()),
+        Job(
+            "MPEG flow",
+            "PyAV decode, export_mvs",
+            lambda: decode_motion_vectors(io.BytesIO(encoded)),
+            t,
+            size,
+        ),
+        whole("DVS simulator", "numba events + binning", DVSCamera(), few),
+        whole("Farneback flow", "OpenCV", Farneback(), few),
+        whole("TV-L1 flow", "OpenCV contrib", TVL1(), few),
+        Job(
+            "EDR K=1 soft gray, Atari batch",
+            f"fused kernel, step() per frame, {atari.shape[0]} envs",
+            lambda: stream(gray, atari),
+            atari.shape[0] * atari.shape[1],
+            f"{atari.shape[0]} x 84x84",
+        ),
+    ]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="edr-bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--video", type=Path, help="a real video to time on (default: generated)")
+    parser.add_argument("--frames", type=int, default=32, help="frames per call (clip length)")
+    parser.add_argument("--flow-frames", type=int, default=6, help="frames per call for slow flows")
+    parser.add_argument("--height", type=int, default=240)
+    parser.add_argument("--width", type=int, default=320)
+    parser.add_argument("--atari-batch", type=int, default=32, help="envs in the Atari-like batch")
+    parser.add_argument("--repeats", type=int, default=7, help="timed calls per row (median)")
+    parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed calls before timing")
+    parser.add_argument("--quick", action="store_true", help="2 repeats, for a smoke test")
+    parser.add_argument(
+        "--system-malloc",
+        action="store_true",
+        help="leave glibc's allocator as it is (default: keep freed memory, see edr.allocator)",
+    )
+    parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
+    parser.add_argument("--table", type=Path, default=Path("paper/table2_speed.md"))
+    args = parser.parse_args(argv)
+    repeats = 2 if args.quick else args.repeats
+    allocator = "glibc default" if args.system_malloc else "glibc, freed memory kept"
+    if not args.system_malloc and not keep_freed_memory():
+        allocator = "system default (mallopt unavailable)"
+    if args.threads:
+        torch.set_num_threads(args.threads)
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+
+    # ---- the clip ----------------------------------------------------------------------------
+    size = (args.width, args.height)
+    if args.video:
+        clip = read_video(args.video, max_frames=args.frames, size=size)
+        source = f"{args.video.name} (decoded, resized to {args.width}x{args.height})"
+    else:
+        clip = synthetic_scene(args.frames, args.height, args.width)
+        source = f"generated scene, {args.width}x{args.height}"
+    clip = clip.unsqueeze(0).contiguous()  # (1, T, 3, H, W) uint8
+    atari = torch.randint(0, 256, (args.atari_batch, args.frames, 1, 84, 84), dtype=torch.uint8)
+
+    # ---- every row ---------------------------------------------------------------------------
+    rows: list[Row] = []
+    with torch.no_grad():
+        todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari)
+        for job in (bar := tqdm(todo, desc="edr-bench", unit="row")):
+            bar.set_postfix_str(job.name)
+            seconds = time_call(job.call, repeats, warmup=args.warmup)
+            rows.append(
+                Row(
+                    job.name,
+                    job.implementation,
+                    job.frames,
+                    job.frame_size,
+                    seconds,
+                    job.frames / seconds,
+                )
+            )
+
+    # ---- record and table --------------------------------------------------------------------
+    stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
+    machine = machine_info()
+    machine["numba_threads"] = numba.get_num_threads()
+    machine["allocator"] = allocator
+    record = {
+        "kind": "speed",
+        "clip": source,
+        "frames_per_call": clip.shape[1],
+        "repeats": repeats,
+        "git": git_revision(),
+        "measured_at": stamp,
+        "machine": machine,
+        "rows": [asdict(r) for r in rows],
+    }
+    path = write_json_atomic(args.out_dir / f"speed_{machine['hostname']}_{stamp}.json", record)
+    table = write_speed_table(record, args.table)
+    print(table.read_text())
+    print(f"record: {path}\ntable:  {table}")
+
+
+if __name__ == "__main__":
+    main()
