@@ -1,0 +1,85 @@
+"""The simulated event camera and event binning."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import ramp_clip, translating_clip
+from edr.representations import DVSCamera, DVSSimulator, events_to_frames
+from edr.representations.dvs import EVENT_DTYPE
+
+
+def _pixel(values: list[float]) -> np.ndarray:
+    return np.array(values, dtype=np.float64).reshape(-1, 1, 1)
+
+
+def test_brightening_fires_on_events_at_interpolated_times() -> None:
+    sim = DVSSimulator(threshold_on=0.2, threshold_off=0.2, eps=1.0, fps=25)
+    # ln(I + 1) rises by ln(3) ~ 1.0986 in one frame: floor(1.0986 / 0.2) = 5 ON events.
+    events = sim.simulate(_pixel([99, 299]))
+    assert events.dtype == EVENT_DTYPE
+    assert len(events) == 5 and (events["p"] == 1).all()
+    span = math.log(300) - math.log(100)
+    expected = [math.floor(40_000 * 0.2 * k / span) for k in range(1, 6)]
+    np.testing.assert_array_equal(events["t"], expected)
+    assert np.all(np.diff(events["t"]) >= 0) and events["t"].max() < 40_000
+
+
+def test_darkening_fires_off_events_and_reference_carries_over() -> None:
+    sim = DVSSimulator(threshold_on=0.3, threshold_off=0.3)
+    events = sim.simulate(_pixel([255, 200, 150, 150]))
+    assert len(events) > 0 and (events["p"] == 0).all()
+    total = math.log(256) - math.log(151)
+    assert len(events) == int(total / 0.3)  # a sub-threshold remainder carries to the next frame
+
+
+def test_refractory_period_drops_events() -> None:
+    frames = _pixel([9, 999])
+    free = DVSSimulator(threshold_on=0.1).simulate(frames)
+    dead = DVSSimulator(threshold_on=0.1, refractory_us=20_000).simulate(frames)
+    assert len(dead) < len(free)
+    assert np.all(np.diff(dead["t"]) >= 20_000)
+
+
+def test_mismatch_is_seeded_and_noise_fires_on_a_still_scene() -> None:
+    frames = np.repeat(np.linspace(20, 200, 6)[:, None, None], 64, axis=2).repeat(8, axis=1)
+    a = DVSSimulator(mismatch=0.3, seed=1).simulate(frames)
+    b = DVSSimulator(mismatch=0.3, seed=1).simulate(frames)
+    c = DVSSimulator(mismatch=0.3, seed=2).simulate(frames)
+    np.testing.assert_array_equal(a, b)
+    assert len(a) != len(c) or not np.array_equal(a, c)
+    still = np.full((11, 8, 8), 100.0)
+    assert len(DVSSimulator().simulate(still)) == 0
+    noisy = DVSSimulator(shot_noise_hz=50.0).simulate(still)
+    # 64 pixels x 50 Hz x 0.4 s = 1,280 expected noise events.
+    assert 1_000 < len(noisy) < 1_600 and set(np.unique(noisy["p"])) == {0, 1}
+
+
+def test_events_to_frames_counts_every_event() -> None:
+    events = np.zeros(6, EVENT_DTYPE)
+    events["t"] = [0, 10, 20, 30, 40, 59]
+    events["x"] = [0, 1, 2, 0, 1, 2]
+    events["y"] = [0, 0, 1, 1, 0, 0]
+    events["p"] = [1, 0, 1, 1, 0, 0]
+    frames = events_to_frames(events, 2, 3, time_window=20)
+    assert frames.shape == (3, 2, 2, 3) and frames.sum() == 6
+    assert frames[0, 1, 0, 0] == 1 and frames[0, 0, 0, 1] == 1
+    assert events_to_frames(events, 2, 3, n_time_bins=2).sum(axis=(1, 2, 3)).tolist() == [3, 3]
+    assert events_to_frames(events, 2, 3, event_count=4).shape[0] == 2
+    with pytest.raises(ValueError, match="exactly one"):
+        events_to_frames(events, 2, 3)
+    with pytest.raises(ValueError, match="outside"):
+        events_to_frames(events, 1, 1, time_window=10)
+
+
+def test_dvs_camera_on_off_order_matches_edr() -> None:
+    up = DVSCamera()(ramp_clip([50, 100], height=2, width=2))
+    assert up.shape == (1, 1, 2, 2, 2)
+    assert (up[0, 0, 0] > 0).all() and (up[0, 0, 1] == 0).all()
+    moving = DVSCamera(threshold_on=0.1, threshold_off=0.1)(translating_clip(frames=4))
+    assert moving[:, :, 0].sum() > 0 and moving[:, :, 1].sum() > 0
+    assert torch.equal(moving, moving.round())
