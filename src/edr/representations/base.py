@@ -71,26 +71,24 @@ def flow_picture(flow: np.ndarray) -> np.ndarray:
 
 def check_clip(clip: torch.Tensor, *, min_frames: int = 1, name: str = "clip") -> None:
     """Raise ``ValueError`` unless ``clip`` is a (B, T, C, H, W) clip of legal intensities."""
-    if not isinstance(clip, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor, got {type(clip).__name__}")
-    if clip.dim() != 5:
-        raise ValueError(
-            f"{name} must have shape (B, T, C, H, W), got {tuple(clip.shape)} (rank {clip.dim()})"
-        )
-    _check_channels_and_values(clip, channel_dim=2, name=name)
+    _check_tensor(clip, "(B, T, C, H, W)", name)
     if clip.shape[1] < min_frames:
         raise ValueError(f"{name} has T={clip.shape[1]} frames; at least {min_frames} are needed")
 
 
 def check_frame(frame: torch.Tensor, *, name: str = "frame") -> None:
     """Raise ``ValueError`` unless ``frame`` is a (B, C, H, W) frame of legal intensities."""
-    if not isinstance(frame, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor, got {type(frame).__name__}")
-    if frame.dim() != 4:
-        raise ValueError(
-            f"{name} must have shape (B, C, H, W), got {tuple(frame.shape)} (rank {frame.dim()})"
-        )
-    _check_channels_and_values(frame, channel_dim=1, name=name)
+    _check_tensor(frame, "(B, C, H, W)", name)
+
+
+def _check_tensor(x: torch.Tensor, layout: str, name: str) -> None:
+    """Rank, channel count (the dim named C in ``layout``), dtype and values of ``x``."""
+    if not isinstance(x, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    dims = layout.strip("()").split(", ")
+    if x.dim() != len(dims):
+        raise ValueError(f"{name} must have shape {layout}, got {tuple(x.shape)} (rank {x.dim()})")
+    _check_channels_and_values(x, channel_dim=dims.index("C"), name=name)
 
 
 def _check_channels_and_values(x: torch.Tensor, *, channel_dim: int, name: str) -> None:

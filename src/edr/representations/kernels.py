@@ -38,6 +38,13 @@ def _load_intensity(x, b, t, c, lo, n, gray, eps, dst):
             dst[i] = np.float32(xc[i]) + eps
 
 
+@njit(inline="always")
+def _chunk(job, n_chunks, n_pix):
+    """Work item ``job`` -> (batch row, first pixel, pixel count) of its chunk."""
+    lo = (job % n_chunks) * CHUNK
+    return job // n_chunks, lo, min(CHUNK, n_pix - lo)
+
+
 @njit(parallel=True, cache=True)
 def edr_kernel(x, gray, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k, ema, restart, out):
     """Run EDR over the frames of ``x``, carrying ``ema`` in place.
@@ -54,9 +61,7 @@ def edr_kernel(x, gray, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k, 
     n_chan, n_k = ema.shape[1], ema.shape[2]
     n_chunks = (n_pix + CHUNK - 1) // CHUNK
     for job in prange(n_batch * n_chunks):
-        b = job // n_chunks
-        lo = (job % n_chunks) * CHUNK
-        n = min(CHUNK, n_pix - lo)
+        b, lo, n = _chunk(job, n_chunks, n_pix)
         intensity = np.empty(n, np.float32)
         acc = np.empty(n, np.float32)
         for t in range(n_frames):
@@ -130,9 +135,7 @@ def gray_diff_kernel(x, scale, out):
     gray = n_in == 3
     n_chunks = (n_pix + CHUNK - 1) // CHUNK
     for job in prange(n_batch * n_chunks):
-        b = job // n_chunks
-        lo = (job % n_chunks) * CHUNK
-        n = min(CHUNK, n_pix - lo)
+        b, lo, n = _chunk(job, n_chunks, n_pix)
         prev = np.empty(n, np.float32)
         cur = np.empty(n, np.float32)
         _load_intensity(x, b, 0, 0, lo, n, gray, ZERO, prev)
