@@ -200,6 +200,7 @@ def main(argv: list[str] | None = None) -> None:
         "clip": source,
         "frames_per_call": clip.shape[1],
         "repeats": repeats,
+        "warmup": args.warmup,
         "git": git_revision(),
         "measured_at": stamp,
         "machine": machine,

@@ -50,7 +50,8 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
         + (f", record `{source}`" if source else "")
         + ".",
         f"- **Data**: {record['clip']}; {record['frames_per_call']} frames per call "
-        f"(slow flows: fewer, see Frames); median of {record['repeats']} timed calls after a warm-up. "
+        f"(slow flows: fewer, see Frames); median of {record['repeats']} timed calls after "
+        f"{record.get('warmup', 1)} warm-up call(s). "
         "Synthetic unless a video file is named: not a UCF-101 clip.",
         "- **Published**: the paper's figures, on its own machine and code; "
         "'—' where we have no published figure to cite.",
