@@ -7,6 +7,9 @@ A representation takes a clip ``(B, T, C, H, W)`` (uint8 or float intensities, C
 
 from __future__ import annotations
 
+import hashlib
+import json
+
 import numpy as np
 import torch
 from torch import nn
@@ -17,6 +20,21 @@ GRAY_WEIGHTS = (0.299, 0.587, 0.114)
 
 class Representation(nn.Module):
     """Base class: clip in, channels out. Subclasses implement ``forward`` and the two sizes."""
+
+    # Too slow to run per batch: tasks compute it once per video and cache it (as the paper did).
+    precompute: bool = False
+    # Output channels that change sign when the clip is mirrored left-right (a flow's dx).
+    hflip_negate: tuple[int, ...] = ()
+
+    def cache_key(self) -> str:
+        """A stable digest of the class, its settings and its tensors, to key cached outputs."""
+        payload = {
+            "class": f"{type(self).__module__}.{type(self).__qualname__}",
+            "settings": _plain(self),
+            "tensors": {k: v.tolist() for k, v in sorted(self.state_dict().items())},
+        }
+        text = json.dumps(payload, sort_keys=True, default=repr)
+        return f"{type(self).__name__.lower()}_{hashlib.sha1(text.encode()).hexdigest()[:12]}"
 
     def out_channels(self, in_channels: int) -> int:
         """Channels of the output for a clip with ``in_channels`` channels."""
@@ -39,6 +57,9 @@ class Representation(nn.Module):
 class FlowRepresentation(Representation):
     """A motion field between consecutive frames: (B, T, C, H, W) -> (B, T-1, 2, H, W), (dx, dy)."""
 
+    precompute = True
+    hflip_negate = (0,)
+
     def out_channels(self, in_channels: int) -> int:
         return 2
 
@@ -47,6 +68,19 @@ class FlowRepresentation(Representation):
 
     def preview(self, out_t: torch.Tensor) -> np.ndarray:
         return flow_picture(out_t.detach().float().cpu().numpy())
+
+
+def _plain(value: object, depth: int = 0) -> object:
+    """Public settings of an object as JSON-able values (nested objects one level down)."""
+    if isinstance(value, str | int | float | bool) or value is None:
+        return value
+    if isinstance(value, list | tuple):
+        return [_plain(v, depth) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v, depth) for k, v in value.items()}
+    if hasattr(value, "__dict__") and depth < 2:
+        return {k: _plain(v, depth + 1) for k, v in sorted(vars(value).items()) if not k.startswith("_")}
+    return type(value).__name__
 
 
 def on_off_picture(on: np.ndarray, off: np.ndarray) -> np.ndarray:

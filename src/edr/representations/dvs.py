@@ -186,6 +186,8 @@ class DVSCamera(Representation):
     network trained on EDR can take event-camera input directly (the paper's Appendix A).
     """
 
+    precompute = True
+
     def __init__(self, **simulator: float) -> None:
         super().__init__()
         self.simulator = DVSSimulator(**simulator)

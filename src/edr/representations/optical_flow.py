@@ -68,9 +68,8 @@ class TVL1(OpticalFlow):
                 "TV-L1 needs cv2.optflow, which only opencv-contrib-python-headless ships; "
                 "uninstall opencv-python(-headless) and install the contrib wheel"
             )
-        self._tvl1 = cv2.optflow.DualTVL1OpticalFlow_create(
-            tau=tau, lambda_=lambda_, nscales=scales, warps=warps
-        )
+        self.params = {"tau": tau, "lambda_": lambda_, "nscales": scales, "warps": warps}
+        self._tvl1 = cv2.optflow.DualTVL1OpticalFlow_create(**self.params)
 
     def _pair(self, prev: np.ndarray, nxt: np.ndarray) -> np.ndarray:
         return self._tvl1.calc(prev, nxt, None)

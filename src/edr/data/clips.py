@@ -1,0 +1,193 @@
+"""From video files to training clips: decode once, cache on disk, crop like the paper.
+
+The paper's Appendix D: videos resized to 89x67; training clips are random volumes of 60
+frames, cropped at a random scale in (1, .875, .75, .66) of the short side and resized to
+58x58, flipped at random; testing takes the first 60 frames and 10 crops (4 corners and the
+centre, each also flipped) and averages the softmax over them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.data import Dataset
+from tqdm import tqdm
+
+from edr.data.datasets import VideoSet
+from edr.data.video import read_video
+
+PAPER_SCALES = (1.0, 0.875, 0.75, 0.66)
+
+
+class ArrayCache:
+    """Arrays computed once per video and kept as ``.npy`` under ``root/<key>/``.
+
+    Writes are atomic, so an interrupted run leaves no half file; ``root=None`` keeps the
+    arrays in memory only.
+    """
+
+    def __init__(self, root: str | Path | None, key: str) -> None:
+        self.dir = Path(root) / key if root is not None else None
+        self._memory: dict[Path, np.ndarray] = {}
+
+    def _file(self, path: Path) -> Path:
+        digest = hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()[:10]
+        return self.dir / f"{Path(path).stem}_{digest}.npy"
+
+    def get(self, path: Path, compute: Callable[[Path], np.ndarray]) -> np.ndarray:
+        if path in self._memory:
+            return self._memory[path]
+        if self.dir is None:
+            array = compute(path)
+        else:
+            file = self._file(path)
+            if not file.is_file():
+                file.parent.mkdir(parents=True, exist_ok=True)
+                fd, tmp = tempfile.mkstemp(dir=file.parent, suffix=".npy.partial")
+                try:
+                    with os.fdopen(fd, "wb") as f:
+                        np.save(f, compute(path))
+                    os.replace(tmp, file)
+                except BaseException:
+                    Path(tmp).unlink(missing_ok=True)
+                    raise
+            array = np.load(file, mmap_mode="r")
+        self._memory[path] = array
+        return array
+
+    def fill(self, paths: Sequence[Path], compute: Callable[[Path], np.ndarray], desc: str) -> None:
+        """Compute every missing entry, with a progress bar."""
+        for path in tqdm(paths, desc=desc, unit="video", leave=False):
+            self.get(path, compute)
+
+
+class VideoSource:
+    """Decoded videos as (T, C, H, W) uint8 at ``size`` (width, height), gray (C=1) or RGB."""
+
+    def __init__(
+        self,
+        cache_dir: str | Path | None,
+        size: tuple[int, int] = (89, 67),
+        gray: bool = False,
+        max_frames: int | None = None,
+    ) -> None:
+        self.size, self.gray, self.max_frames = (int(size[0]), int(size[1])), gray, max_frames
+        key = f"frames_{self.size[0]}x{self.size[1]}_{'gray' if gray else 'rgb'}_{max_frames or 'all'}"
+        self.cache = ArrayCache(cache_dir, key)
+
+    @property
+    def channels(self) -> int:
+        return 1 if self.gray else 3
+
+    def decode(self, path: Path) -> np.ndarray:
+        frames = read_video(path, max_frames=self.max_frames, size=self.size)  # (T, 3, H, W)
+        if self.gray:
+            frames = frames.float().mean(1, keepdim=True).round().to(torch.uint8)
+        return frames.numpy()
+
+    def __call__(self, path: Path) -> np.ndarray:
+        return self.cache.get(path, self.decode)
+
+
+class PrecomputedSource:
+    """A representation of each whole decoded video, computed once (the paper's flows).
+
+    Returns (T', C_out, H, W) float32; keyed by the representation's ``cache_key()``.
+    """
+
+    def __init__(self, frames: VideoSource, representation: torch.nn.Module, cache_dir: str | Path | None) -> None:
+        self.frames, self.representation = frames, representation
+        key = f"{frames.cache.dir.name if frames.cache.dir else 'frames'}_{representation.cache_key()}"
+        self.cache = ArrayCache(cache_dir, key)
+
+    def compute(self, path: Path) -> np.ndarray:
+        video = torch.from_numpy(np.array(self.frames(path))).unsqueeze(0)  # (1, T, C, H, W)
+        with torch.no_grad():
+            return self.representation(video)[0].numpy().astype(np.float32)
+
+    def __call__(self, path: Path) -> np.ndarray:
+        return self.cache.get(path, self.compute)
+
+
+def _take_frames(video: torch.Tensor, start: int, frames: int) -> torch.Tensor:
+    """``frames`` frames from ``start``; a short video holds its last frame."""
+    clip = video[start : start + frames]
+    if clip.shape[0] < frames:
+        clip = torch.cat([clip, clip[-1:].expand(frames - clip.shape[0], *clip.shape[1:])])
+    return clip
+
+
+def _resize(clip: torch.Tensor, size: int) -> torch.Tensor:
+    """(T, C, h, w) -> (T, C, size, size) float32, bilinear."""
+    clip = clip.float()
+    if clip.shape[-2:] == (size, size):
+        return clip
+    return F.interpolate(clip, size=(size, size), mode="bilinear", align_corners=False)
+
+
+def _flip(clip: torch.Tensor, negate: Sequence[int]) -> torch.Tensor:
+    """Mirror left-right; channels in ``negate`` (a flow's dx) change sign."""
+    clip = clip.flip(-1)
+    if negate:
+        clip[:, list(negate)] = -clip[:, list(negate)]
+    return clip
+
+
+def random_clip(
+    video: torch.Tensor, frames: int, crop: int, scales: Sequence[float] = PAPER_SCALES, negate: Sequence[int] = ()
+) -> torch.Tensor:
+    """(T, C, H, W) -> one training clip (frames, C, crop, crop): random time, scale, place, flip."""
+    t, _, h, w = video.shape
+    start = int(torch.randint(0, max(t - frames, 0) + 1, ()))
+    side = max(1, round(float(scales[int(torch.randint(0, len(scales), ()))]) * min(h, w)))
+    y = int(torch.randint(0, h - side + 1, ()))
+    x = int(torch.randint(0, w - side + 1, ()))
+    clip = _resize(_take_frames(video, start, frames)[:, :, y : y + side, x : x + side], crop)
+    return _flip(clip, negate) if bool(torch.randint(0, 2, ())) else clip
+
+
+def ten_crops(video: torch.Tensor, frames: int, crop: int, negate: Sequence[int] = ()) -> torch.Tensor:
+    """(T, C, H, W) -> (10, frames, C, crop, crop): the first frames, 4 corners + centre, and flips."""
+    clip = _take_frames(video, 0, frames)
+    h, w = clip.shape[-2:]
+    side = min(crop, h, w)
+    corners = [(0, 0), (0, w - side), (h - side, 0), (h - side, w - side), ((h - side) // 2, (w - side) // 2)]
+    crops = [_resize(clip[:, :, y : y + side, x : x + side], crop) for y, x in corners]
+    crops += [_flip(c, negate) for c in crops]
+    return torch.stack(crops)
+
+
+class ClipDataset(Dataset):
+    """(clip, label) pairs: training clips (frames, C, crop, crop) or test stacks (10, ...)."""
+
+    def __init__(
+        self,
+        videos: VideoSet,
+        source: Callable[[Path], np.ndarray],
+        *,
+        frames: int,
+        crop: int,
+        train: bool,
+        scales: Sequence[float] = PAPER_SCALES,
+        negate: Sequence[int] = (),
+    ) -> None:
+        self.videos, self.source = videos, source
+        self.frames, self.crop, self.train = frames, crop, train
+        self.scales, self.negate = tuple(scales), tuple(negate)
+
+    def __len__(self) -> int:
+        return len(self.videos)
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, int]:
+        video = self.videos.videos[index]
+        array = torch.from_numpy(np.array(self.source(video.path)))
+        if self.train:
+            return random_clip(array, self.frames, self.crop, self.scales, self.negate), video.label
+        return ten_crops(array, self.frames, self.crop, self.negate), video.label

@@ -1,0 +1,141 @@
+"""The video lists of UCF-101 and KTH, read from their official on-disk layouts.
+
+UCF-101::
+
+    <root>/<ClassName>/v_<ClassName>_gXX_cYY.avi
+    <root>/ucfTrainTestlist/classInd.txt          "1 ApplyEyeMakeup" per line
+    <root>/ucfTrainTestlist/trainlist0{1,2,3}.txt "ApplyEyeMakeup/v_ApplyEyeMakeup_g08_c01.avi 1"
+    <root>/ucfTrainTestlist/testlist0{1,2,3}.txt  "ApplyEyeMakeup/v_ApplyEyeMakeup_g01_c01.avi"
+
+(``ucfTrainTestlist/`` may also sit beside ``<root>``, where the official zip unpacks it.)
+
+KTH::
+
+    <root>/<action>/personXX_<action>_dY_uncomp.avi   6 actions, persons 01-25, scenarios d1-d4
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from edr.data.synthetic import KTH_ACTIONS
+
+UCF_LAYOUT = (
+    "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
+    "classInd.txt, trainlist0{1,2,3}.txt, testlist0{1,2,3}.txt"
+)
+KTH_LAYOUT = f"<root>/<action>/personXX_<action>_dY_uncomp.avi for the actions {', '.join(KTH_ACTIONS)}"
+KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.avi$")
+# Schuldt et al. (2004): training + validation persons, and the test persons.
+KTH_TRAIN_PERSONS = (11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 23, 24, 25, 1, 4)
+KTH_TEST_PERSONS = (22, 2, 3, 5, 6, 7, 8, 9, 10)
+
+
+@dataclass(frozen=True)
+class Video:
+    """One labelled video file."""
+
+    path: Path
+    label: int  # 0-based class index
+    group: str  # what must not straddle train and test: UCF group, KTH person
+
+
+@dataclass(frozen=True)
+class VideoSet:
+    """A split of a data set: its videos and the class names their labels index."""
+
+    videos: tuple[Video, ...]
+    classes: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.videos)
+
+
+def _missing(root: Path, what: str, layout: str) -> FileNotFoundError:
+    return FileNotFoundError(f"{what} not found under {root}; expected the layout {layout}")
+
+
+def ucf101(root: str | Path, *, split: int = 1, train: bool = True) -> VideoSet:
+    """The train or test videos of official split 1, 2 or 3."""
+    root = Path(root)
+    if split not in (1, 2, 3):
+        raise ValueError(f"UCF-101 has splits 1, 2 and 3, not {split}")
+    if not root.is_dir():
+        raise _missing(root, "UCF-101 root", UCF_LAYOUT)
+    lists = next((d for d in (root / "ucfTrainTestlist", root.parent / "ucfTrainTestlist") if d.is_dir()), None)
+    if lists is None:
+        raise _missing(root, "ucfTrainTestlist/", UCF_LAYOUT)
+    class_file = lists / "classInd.txt"
+    list_file = lists / f"{'train' if train else 'test'}list0{split}.txt"
+    for f in (class_file, list_file):
+        if not f.is_file():
+            raise _missing(root, f.name, UCF_LAYOUT)
+    classes: dict[str, int] = {}
+    for n, line in enumerate(class_file.read_text().splitlines(), start=1):
+        if line.strip():
+            parts = line.split()
+            if len(parts) != 2 or not parts[0].isdigit():
+                raise ValueError(f"{class_file}:{n}: expected '<index> <ClassName>', got {line!r}")
+            classes[parts[1]] = int(parts[0]) - 1
+    videos = []
+    for n, line in enumerate(list_file.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        rel = line.split()[0]
+        name = rel.split("/")[0]
+        if name not in classes:
+            raise ValueError(f"{list_file}:{n}: class {name!r} is not in {class_file.name}")
+        path = root / rel
+        if not path.is_file():
+            raise FileNotFoundError(f"{list_file}:{n} lists {rel}, which is not under {root} ({UCF_LAYOUT})")
+        group = re.search(r"_g(\d+)_c\d+", rel)
+        videos.append(Video(path, classes[name], group.group(1) if group else rel))
+    if not videos:
+        raise ValueError(f"{list_file} lists no videos")
+    names = tuple(sorted(classes, key=classes.get))
+    return VideoSet(tuple(videos), names)
+
+
+def kth(
+    root: str | Path,
+    *,
+    train: bool = True,
+    protocol: Literal["random", "person"] = "random",
+    train_fraction: float = 0.75,
+    seed: int = 0,
+) -> VideoSet:
+    """KTH's videos; ``protocol="random"``: the paper's seeded 75/25 random split of the videos,
+    ``"person"``: the standard split by person (Schuldt et al. 2004)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise _missing(root, "KTH root", KTH_LAYOUT)
+    absent = [a for a in KTH_ACTIONS if not (root / a).is_dir()]
+    if absent:
+        raise _missing(root, f"action folders {absent}", KTH_LAYOUT)
+    videos = []
+    for label, action in enumerate(KTH_ACTIONS):
+        for path in sorted((root / action).glob("*.avi")):
+            match = KTH_NAME.search(path.name)
+            if match is None or match.group(2) != action:
+                raise ValueError(f"{path}: not a KTH file name ({KTH_LAYOUT})")
+            videos.append(Video(path, label, match.group(1)))
+    if not videos:
+        raise _missing(root, "no .avi files", KTH_LAYOUT)
+    if protocol == "person":
+        persons = {f"{p:02d}" for p in (KTH_TRAIN_PERSONS if train else KTH_TEST_PERSONS)}
+        chosen = [v for v in videos if v.group in persons]
+    elif protocol == "random":
+        order = np.random.default_rng(seed).permutation(len(videos))
+        cut = int(round(train_fraction * len(videos)))
+        keep = order[:cut] if train else order[cut:]
+        chosen = [videos[i] for i in sorted(keep)]
+    else:
+        raise ValueError(f"protocol must be 'random' or 'person', got {protocol!r}")
+    if not chosen:
+        raise ValueError(f"the {protocol} split of {root} leaves no {'train' if train else 'test'} videos")
+    return VideoSet(tuple(chosen), KTH_ACTIONS)

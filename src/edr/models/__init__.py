@@ -1,0 +1,8 @@
+"""Backbones for video recognition: LTC, and per-frame ConvNets with a recurrent head."""
+
+from edr.models.convnets import LeNet, NiN
+from edr.models.ltc import LTC
+from edr.models.recognition import ConvRecurrent, RecognitionModel, activation_sparsity
+from edr.models.recurrent import FTRCN, GRURCN, LRCN
+
+__all__ = ["FTRCN", "GRURCN", "LRCN", "LTC", "ConvRecurrent", "LeNet", "NiN", "RecognitionModel", "activation_sparsity"]

@@ -1,0 +1,83 @@
+"""Recurrent heads over per-frame feature maps (B, T, F, h, w) -> (B, num_classes).
+
+- LRCN (Donahue et al.): an LSTM over the flattened feature maps.
+- GRU-RCN (Ballas et al.): a convolutional GRU — the recurrence at each location mixes all
+  channels through 3x3 convolutions.
+- FT-RCN (feature tracking): a GRU whose recurrent term is, for each channel on its own, a
+  full map from every location to every location of that channel (a (h*w) x (h*w) matrix per
+  channel and gate); no recurrent weight couples two channels. The input term may mix channels.
+
+Each classifies from its final hidden state (spatially averaged for the two convolutional ones).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+
+class LRCN(nn.Module):
+    def __init__(self, channels: int, height: int, width: int, num_classes: int, hidden: int = 256) -> None:
+        super().__init__()
+        self.lstm = nn.LSTM(channels * height * width, hidden, batch_first=True)
+        self.classifier = nn.Linear(hidden, num_classes)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        b, t = features.shape[:2]
+        _, (h, _) = self.lstm(features.reshape(b, t, -1))  # h: (1, B, hidden)
+        return self.classifier(h[-1])
+
+
+class GRURCN(nn.Module):
+    def __init__(
+        self, channels: int, height: int, width: int, num_classes: int, hidden: int = 64, kernel: int = 3
+    ) -> None:
+        super().__init__()
+        self.hidden = hidden
+        self.input_gates = nn.Conv2d(channels, 3 * hidden, kernel, padding=kernel // 2)  # z, r, n
+        self.recurrent_gates = nn.Conv2d(hidden, 2 * hidden, kernel, padding=kernel // 2, bias=False)
+        self.recurrent_candidate = nn.Conv2d(hidden, hidden, kernel, padding=kernel // 2, bias=False)
+        self.classifier = nn.Linear(hidden, num_classes)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        b, t, _, h, w = features.shape
+        state = features.new_zeros(b, self.hidden, h, w)
+        inputs = self.input_gates(features.flatten(0, 1)).view(b, t, 3, self.hidden, h, w)
+        for step in range(t):
+            xz, xr, xn = inputs[:, step].unbind(1)
+            hz, hr = self.recurrent_gates(state).view(b, 2, self.hidden, h, w).unbind(1)
+            z, r = torch.sigmoid(xz + hz), torch.sigmoid(xr + hr)
+            candidate = torch.tanh(xn + self.recurrent_candidate(r * state))
+            state = (1 - z) * candidate + z * state  # (B, hidden, h, w)
+        return self.classifier(state.mean(dim=(2, 3)))
+
+
+class FTRCN(nn.Module):
+    def __init__(
+        self, channels: int, height: int, width: int, num_classes: int, hidden: int = 64, kernel: int = 3
+    ) -> None:
+        super().__init__()
+        self.hidden = hidden
+        locations = height * width
+        self.input_gates = nn.Conv2d(channels, 3 * hidden, kernel, padding=kernel // 2)  # z, r, n
+        # (gate, channel, from location, to location): each channel tracks its own map.
+        self.recurrent = nn.Parameter(torch.randn(3, hidden, locations, locations) / math.sqrt(locations))
+        self.classifier = nn.Linear(hidden, num_classes)
+
+    def recurrent_term(self, state: torch.Tensor, gate: int) -> torch.Tensor:
+        """(B, hidden, h*w) -> (B, hidden, h*w): within each channel, every location to every one."""
+        return torch.einsum("bcp,cpq->bcq", state, self.recurrent[gate])
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        b, t, _, h, w = features.shape
+        state = features.new_zeros(b, self.hidden, h * w)
+        inputs = self.input_gates(features.flatten(0, 1)).view(b, t, 3, self.hidden, h * w)
+        for step in range(t):
+            xz, xr, xn = inputs[:, step].unbind(1)
+            z = torch.sigmoid(xz + self.recurrent_term(state, 0))
+            r = torch.sigmoid(xr + self.recurrent_term(state, 1))
+            candidate = torch.tanh(xn + self.recurrent_term(r * state, 2))
+            state = (1 - z) * candidate + z * state  # (B, hidden, h*w)
+        return self.classifier(state.mean(dim=2))

@@ -1,0 +1,45 @@
+"""Figures the tasks save beside their run records."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path:
+    """Training loss and accuracy, and test accuracy where measured, against epochs."""
+    fig, (ax_loss, ax_acc) = plt.subplots(1, 2, figsize=(8, 3))
+    epochs = [row["epoch"] for row in history]
+    ax_loss.plot(epochs, [row["train/loss"] for row in history], "k.-")
+    ax_loss.set(xlabel="epoch", ylabel="train loss")
+    ax_acc.plot(epochs, [row["train/accuracy"] for row in history], ".-", label="train clips")
+    tested = [row for row in history if "eval/accuracy" in row]
+    ax_acc.plot([r["epoch"] for r in tested], [r["eval/accuracy"] for r in tested], "o-", label="test videos")
+    ax_acc.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
+    ax_acc.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def save_confusion(matrix: np.ndarray, classes: Sequence[str], path: Path) -> Path:
+    """Row-normalized confusion matrix (true class per row)."""
+    shown = matrix / np.maximum(matrix.sum(1, keepdims=True), 1)
+    size = max(3.0, 0.45 * len(classes) + 1.5)
+    fig, ax = plt.subplots(figsize=(size, size))
+    ax.imshow(shown, cmap="Blues", vmin=0, vmax=1)
+    if len(classes) <= 30:
+        ax.set_xticks(range(len(classes)), classes, rotation=90, fontsize=7)
+        ax.set_yticks(range(len(classes)), classes, fontsize=7)
+    ax.set(xlabel="predicted", ylabel="true")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
