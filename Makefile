@@ -20,8 +20,11 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 
 setup: $(VENV)/.installed
 
+# EDR vs FDR with LeNet + FT-RCN on generated KTH-layout video, then their Table-4-style table.
+DEMO_DIR := results/sweeps/kth_demo
 demo: setup
-	$(BIN)/edr-run
+	$(BIN)/edr-run -m experiment=kth_demo representation=edr,fdr hydra.sweep.dir=$(DEMO_DIR)
+	$(BIN)/edr-tables --runs $(DEMO_DIR) --out $(DEMO_DIR)/table4.md
 
 test: setup
 	$(BIN)/ruff check src tests

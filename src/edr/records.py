@@ -81,14 +81,16 @@ def write_run_record(
     out_dir: Path,
     *,
     task: str,
+    choices: dict[str, str],
     config: dict[str, Any],
     overrides: list[str],
     metrics: dict[str, Any],
     wall_time_s: float,
 ) -> Path:
-    """Write ``out_dir/run.json``: resolved config, metrics, git revision, machine, wall time."""
+    """Write ``out_dir/run.json``: config choices and resolved values, metrics, git, machine, time."""
     record = {
         "task": task,
+        "choices": choices,
         "overrides": overrides,
         "metrics": metrics,
         "wall_time_s": round(wall_time_s, 3),

@@ -50,9 +50,15 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 
     # ---- the record --------------------------------------------------------------------------
     hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
+    choices = (
+        {k: str(v) for k, v in hydra_cfg.runtime.choices.items() if "hydra" not in k}
+        if hydra_cfg
+        else {}
+    )
     write_run_record(
         out_dir,
-        task=hydra_cfg.runtime.choices.get("task", "?") if hydra_cfg else cfg.task._target_,
+        task=choices.get("task", cfg.task._target_),
+        choices=choices,
         config=resolved,
         overrides=list(hydra_cfg.overrides.task) if hydra_cfg else [],
         metrics=metrics,

@@ -1,7 +1,7 @@
 """``edr-tables``: the paper's tables regenerated from the records our runs wrote.
 
-    edr-tables                      # every table whose records exist
-    edr-tables --results results --paper paper
+    edr-tables                      # every table whose records exist, into paper/
+    edr-tables --runs results/sweeps/kth_demo --out results/sweeps/kth_demo/table4.md
 
 Each table says where its numbers come from (data, scale, machine, records) and puts the
 published numbers beside ours, never in their place.
@@ -15,6 +15,8 @@ from typing import Any
 
 from edr.records import read_record
 
+# The paper's KTH accuracy we can cite, by (representation, backbone) config names.
+PUBLISHED_KTH = {("edr", "nin_ftrcn"): 94.4}
 # The paper's speed figures we can cite (fps), by our row names; the paper's own machine and code.
 PUBLISHED_FPS = {"EDR K=1 soft gray": 9.8e3, "Brox flow": 6.3}
 PUBLISHED_RATIOS = {
@@ -88,11 +90,59 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
 
 
 def write_speed_table(record: dict[str, Any], path: Path, source: str = "") -> Path:
+    return _write(speed_table(record, source), path)
+
+
+def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) -> str:
+    """Markdown: one row per (representation, backbone), accuracy averaged over seeds."""
+    groups: dict[tuple[str, str, bool], list[tuple[Path, dict[str, Any]]]] = {}
+    for path, record in records:
+        choice = record.get("choices", {})
+        key = (
+            choice.get("representation", "?"),
+            choice.get("backbone", "?"),
+            record["metrics"]["data/synthetic"],
+        )
+        groups.setdefault(key, []).append((path, record))
+    lines = [
+        f"# {title}",
+        "",
+        "Video accuracy on the test split (10 crops, averaged softmax), mean over the runs listed.",
+        "**Data** says whether the runs used the real data set or the generated one in its layout;",
+        "generated results are not the paper's data set and are never comparable to its numbers.",
+        "",
+        "| Representation | Backbone | Data | Videos (train/test) | Runs | Accuracy (%) | Chance (%) | Published (%) | Machine |",
+        "|---|---|---|---|---:|---:|---:|---:|---|",
+    ]
+    for (rep, backbone, synthetic), runs in sorted(groups.items()):
+        metrics = [r["metrics"] for _, r in runs]
+        accuracy = 100 * sum(m["eval/accuracy"] for m in metrics) / len(metrics)
+        published = PUBLISHED_KTH.get((rep, backbone)) if not synthetic else None
+        machine = runs[0][1]["machine"]
+        lines.append(
+            f"| {rep} | {backbone} | {'generated (synthetic)' if synthetic else 'real'} | "
+            f"{metrics[0]['data/train_videos']}/{metrics[0]['data/test_videos']} | {len(runs)} | {accuracy:.1f} | "
+            f"{100 * metrics[0]['eval/chance']:.1f} | {published if published else '—'} | "
+            f"{machine['cpu']}, GPU: {machine.get('gpu') or 'none'} |"
+        )
+    lines += ["", "Records:", ""] + [f"- `{path}`" for path, _ in records] + [""]
+    return "\n".join(lines)
+
+
+def _write(text: str, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(speed_table(record, source))
+    tmp.write_text(text)
     tmp.replace(path)
     return path
+
+
+def task_records(root: Path, task: str) -> list[tuple[Path, dict[str, Any]]]:
+    """Every run record under ``root`` (runs and sweeps) of ``task``, oldest first."""
+    found = [
+        (p, read_record(p)) for p in sorted(root.rglob("run.json"), key=lambda p: p.stat().st_mtime)
+    ]
+    return [(p, r) for p, r in found if r.get("task") == task]
 
 
 def newest(pattern: str, root: Path) -> Path | None:
@@ -104,7 +154,20 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="edr-tables", description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", type=Path, default=Path("results"), help="where runs wrote")
     parser.add_argument("--paper", type=Path, default=Path("paper"), help="where tables go")
+    parser.add_argument("--runs", type=Path, help="only the KTH runs under this folder (a sweep)")
+    parser.add_argument(
+        "--out", type=Path, help="with --runs: where its table goes (else printed only)"
+    )
     args = parser.parse_args(argv)
+    if args.runs:
+        records = task_records(args.runs, "kth")
+        if not records:
+            raise SystemExit(f"no KTH run records under {args.runs}")
+        text = recognition_table(records, f"Table 4 style: KTH runs under {args.runs}")
+        print(text)
+        if args.out:
+            print(f"wrote {_write(text, args.out)}")
+        return
     written = []
     speed = newest("bench/speed_*.json", args.results)
     if speed is None:
@@ -113,6 +176,10 @@ def main(argv: list[str] | None = None) -> None:
         written.append(
             write_speed_table(read_record(speed), args.paper / "table2_speed.md", str(speed))
         )
+    kth_runs = task_records(args.results, "kth")
+    if kth_runs:
+        text = recognition_table(kth_runs, "Table 4: KTH, ours beside the paper's")
+        written.append(_write(text, args.paper / "table4_kth.md"))
     for path in written:
         print(f"wrote {path}")
 

@@ -102,7 +102,9 @@ class PrecomputedSource:
     Returns (T', C_out, H, W) float32; keyed by the representation's ``cache_key()``.
     """
 
-    def __init__(self, frames: VideoSource, representation: torch.nn.Module, cache_dir: str | Path | None) -> None:
+    def __init__(
+        self, frames: VideoSource, representation: torch.nn.Module, cache_dir: str | Path | None
+    ) -> None:
         self.frames, self.representation = frames, representation
         key = f"{frames.cache.dir.name if frames.cache.dir else 'frames'}_{representation.cache_key()}"
         self.cache = ArrayCache(cache_dir, key)
@@ -141,7 +143,11 @@ def _flip(clip: torch.Tensor, negate: Sequence[int]) -> torch.Tensor:
 
 
 def random_clip(
-    video: torch.Tensor, frames: int, crop: int, scales: Sequence[float] = PAPER_SCALES, negate: Sequence[int] = ()
+    video: torch.Tensor,
+    frames: int,
+    crop: int,
+    scales: Sequence[float] = PAPER_SCALES,
+    negate: Sequence[int] = (),
 ) -> torch.Tensor:
     """(T, C, H, W) -> one training clip (frames, C, crop, crop): random time, scale, place, flip."""
     t, _, h, w = video.shape
@@ -153,12 +159,20 @@ def random_clip(
     return _flip(clip, negate) if bool(torch.randint(0, 2, ())) else clip
 
 
-def ten_crops(video: torch.Tensor, frames: int, crop: int, negate: Sequence[int] = ()) -> torch.Tensor:
+def ten_crops(
+    video: torch.Tensor, frames: int, crop: int, negate: Sequence[int] = ()
+) -> torch.Tensor:
     """(T, C, H, W) -> (10, frames, C, crop, crop): the first frames, 4 corners + centre, and flips."""
     clip = _take_frames(video, 0, frames)
     h, w = clip.shape[-2:]
     side = min(crop, h, w)
-    corners = [(0, 0), (0, w - side), (h - side, 0), (h - side, w - side), ((h - side) // 2, (w - side) // 2)]
+    corners = [
+        (0, 0),
+        (0, w - side),
+        (h - side, 0),
+        (h - side, w - side),
+        ((h - side) // 2, (w - side) // 2),
+    ]
     crops = [_resize(clip[:, :, y : y + side, x : x + side], crop) for y, x in corners]
     crops += [_flip(c, negate) for c in crops]
     return torch.stack(crops)

@@ -29,7 +29,9 @@ UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
     "classInd.txt, trainlist0{1,2,3}.txt, testlist0{1,2,3}.txt"
 )
-KTH_LAYOUT = f"<root>/<action>/personXX_<action>_dY_uncomp.avi for the actions {', '.join(KTH_ACTIONS)}"
+KTH_LAYOUT = (
+    f"<root>/<action>/personXX_<action>_dY_uncomp.avi for the actions {', '.join(KTH_ACTIONS)}"
+)
 KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.avi$")
 # Schuldt et al. (2004): training + validation persons, and the test persons.
 KTH_TRAIN_PERSONS = (11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 23, 24, 25, 1, 4)
@@ -67,7 +69,10 @@ def ucf101(root: str | Path, *, split: int = 1, train: bool = True) -> VideoSet:
         raise ValueError(f"UCF-101 has splits 1, 2 and 3, not {split}")
     if not root.is_dir():
         raise _missing(root, "UCF-101 root", UCF_LAYOUT)
-    lists = next((d for d in (root / "ucfTrainTestlist", root.parent / "ucfTrainTestlist") if d.is_dir()), None)
+    lists = next(
+        (d for d in (root / "ucfTrainTestlist", root.parent / "ucfTrainTestlist") if d.is_dir()),
+        None,
+    )
     if lists is None:
         raise _missing(root, "ucfTrainTestlist/", UCF_LAYOUT)
     class_file = lists / "classInd.txt"
@@ -92,7 +97,9 @@ def ucf101(root: str | Path, *, split: int = 1, train: bool = True) -> VideoSet:
             raise ValueError(f"{list_file}:{n}: class {name!r} is not in {class_file.name}")
         path = root / rel
         if not path.is_file():
-            raise FileNotFoundError(f"{list_file}:{n} lists {rel}, which is not under {root} ({UCF_LAYOUT})")
+            raise FileNotFoundError(
+                f"{list_file}:{n} lists {rel}, which is not under {root} ({UCF_LAYOUT})"
+            )
         group = re.search(r"_g(\d+)_c\d+", rel)
         videos.append(Video(path, classes[name], group.group(1) if group else rel))
     if not videos:
@@ -131,11 +138,13 @@ def kth(
         chosen = [v for v in videos if v.group in persons]
     elif protocol == "random":
         order = np.random.default_rng(seed).permutation(len(videos))
-        cut = int(round(train_fraction * len(videos)))
+        cut = round(train_fraction * len(videos))
         keep = order[:cut] if train else order[cut:]
         chosen = [videos[i] for i in sorted(keep)]
     else:
         raise ValueError(f"protocol must be 'random' or 'person', got {protocol!r}")
     if not chosen:
-        raise ValueError(f"the {protocol} split of {root} leaves no {'train' if train else 'test'} videos")
+        raise ValueError(
+            f"the {protocol} split of {root} leaves no {'train' if train else 'test'} videos"
+        )
     return VideoSet(tuple(chosen), KTH_ACTIONS)

@@ -86,8 +86,12 @@ def action_video(
     cy = height * rng.uniform(0.45, 0.6)
     direction = rng.choice([-1.0, 1.0])
     speed = {"walking": 1.0, "jogging": 2.0, "running": 3.5}.get(action, 0.0) * scale
-    x_start = width * (0.15 if direction > 0 else 0.85) if speed else width * rng.uniform(0.35, 0.65)
-    period = {"boxing": 6, "handclapping": 8, "handwaving": 12}.get(action, 10) * rng.uniform(0.85, 1.15)
+    x_start = (
+        width * (0.15 if direction > 0 else 0.85) if speed else width * rng.uniform(0.35, 0.65)
+    )
+    period = {"boxing": 6, "handclapping": 8, "handwaving": 12}.get(action, 10) * rng.uniform(
+        0.85, 1.15
+    )
     phase0 = rng.uniform(0, 2 * np.pi)
     body_level, limb_level = rng.uniform(25, 60), rng.uniform(190, 240)
     out = np.empty((frames, height, width), np.uint8)
@@ -102,7 +106,12 @@ def action_video(
         phase = phase0 + 2 * np.pi * t / period
         hands = []
         if action == "boxing":
-            hands = [(cx + direction * (body_w / 2 + limb + 10 * scale * max(np.sin(phase), 0)), cy - 8 * scale)]
+            hands = [
+                (
+                    cx + direction * (body_w / 2 + limb + 10 * scale * max(np.sin(phase), 0)),
+                    cy - 8 * scale,
+                )
+            ]
         elif action == "handclapping":
             gap = limb + 8 * scale * (1 + np.sin(phase)) / 2
             hands = [(cx - gap, cy - 10 * scale), (cx + gap, cy - 10 * scale)]

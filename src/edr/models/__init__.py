@@ -5,4 +5,14 @@ from edr.models.ltc import LTC
 from edr.models.recognition import ConvRecurrent, RecognitionModel, activation_sparsity
 from edr.models.recurrent import FTRCN, GRURCN, LRCN
 
-__all__ = ["FTRCN", "GRURCN", "LRCN", "LTC", "ConvRecurrent", "LeNet", "NiN", "RecognitionModel", "activation_sparsity"]
+__all__ = [
+    "FTRCN",
+    "GRURCN",
+    "LRCN",
+    "LTC",
+    "ConvRecurrent",
+    "LeNet",
+    "NiN",
+    "RecognitionModel",
+    "activation_sparsity",
+]

@@ -25,7 +25,10 @@ class NiN(nn.Sequential):
     3x3/2 max-pooling after all but the last block."""
 
     def __init__(
-        self, in_channels: int, widths: Sequence[int] = (96, 192, 192), kernels: Sequence[int] = (5, 5, 3)
+        self,
+        in_channels: int,
+        widths: Sequence[int] = (96, 192, 192),
+        kernels: Sequence[int] = (5, 5, 3),
     ) -> None:
         layers: list[nn.Module] = []
         channels = in_channels

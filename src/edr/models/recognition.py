@@ -60,7 +60,11 @@ def activation_sparsity(model: RecognitionModel, clips: torch.Tensor) -> dict[st
 
         return hook
 
-    handles = [m.register_forward_hook(record(n)) for n, m in model.named_modules() if isinstance(m, nn.ReLU)]
+    handles = [
+        m.register_forward_hook(record(n))
+        for n, m in model.named_modules()
+        if isinstance(m, nn.ReLU)
+    ]
     if model.representation is not None:
         handles.append(model.representation.register_forward_hook(record("representation")))
     try:

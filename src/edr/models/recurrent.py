@@ -19,7 +19,9 @@ from torch import nn
 
 
 class LRCN(nn.Module):
-    def __init__(self, channels: int, height: int, width: int, num_classes: int, hidden: int = 256) -> None:
+    def __init__(
+        self, channels: int, height: int, width: int, num_classes: int, hidden: int = 256
+    ) -> None:
         super().__init__()
         self.lstm = nn.LSTM(channels * height * width, hidden, batch_first=True)
         self.classifier = nn.Linear(hidden, num_classes)
@@ -32,13 +34,23 @@ class LRCN(nn.Module):
 
 class GRURCN(nn.Module):
     def __init__(
-        self, channels: int, height: int, width: int, num_classes: int, hidden: int = 64, kernel: int = 3
+        self,
+        channels: int,
+        height: int,
+        width: int,
+        num_classes: int,
+        hidden: int = 64,
+        kernel: int = 3,
     ) -> None:
         super().__init__()
         self.hidden = hidden
         self.input_gates = nn.Conv2d(channels, 3 * hidden, kernel, padding=kernel // 2)  # z, r, n
-        self.recurrent_gates = nn.Conv2d(hidden, 2 * hidden, kernel, padding=kernel // 2, bias=False)
-        self.recurrent_candidate = nn.Conv2d(hidden, hidden, kernel, padding=kernel // 2, bias=False)
+        self.recurrent_gates = nn.Conv2d(
+            hidden, 2 * hidden, kernel, padding=kernel // 2, bias=False
+        )
+        self.recurrent_candidate = nn.Conv2d(
+            hidden, hidden, kernel, padding=kernel // 2, bias=False
+        )
         self.classifier = nn.Linear(hidden, num_classes)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
@@ -56,14 +68,22 @@ class GRURCN(nn.Module):
 
 class FTRCN(nn.Module):
     def __init__(
-        self, channels: int, height: int, width: int, num_classes: int, hidden: int = 64, kernel: int = 3
+        self,
+        channels: int,
+        height: int,
+        width: int,
+        num_classes: int,
+        hidden: int = 64,
+        kernel: int = 3,
     ) -> None:
         super().__init__()
         self.hidden = hidden
         locations = height * width
         self.input_gates = nn.Conv2d(channels, 3 * hidden, kernel, padding=kernel // 2)  # z, r, n
         # (gate, channel, from location, to location): each channel tracks its own map.
-        self.recurrent = nn.Parameter(torch.randn(3, hidden, locations, locations) / math.sqrt(locations))
+        self.recurrent = nn.Parameter(
+            torch.randn(3, hidden, locations, locations) / math.sqrt(locations)
+        )
         self.classifier = nn.Linear(hidden, num_classes)
 
     def recurrent_term(self, state: torch.Tensor, gate: int) -> torch.Tensor:

@@ -79,7 +79,9 @@ def _plain(value: object, depth: int = 0) -> object:
     if isinstance(value, dict):
         return {str(k): _plain(v, depth) for k, v in value.items()}
     if hasattr(value, "__dict__") and depth < 2:
-        return {k: _plain(v, depth + 1) for k, v in sorted(vars(value).items()) if not k.startswith("_")}
+        return {
+            k: _plain(v, depth + 1) for k, v in sorted(vars(value).items()) if not k.startswith("_")
+        }
     return type(value).__name__
 
 

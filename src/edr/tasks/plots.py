@@ -8,8 +8,8 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
 
 def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path:
@@ -20,7 +20,12 @@ def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path
     ax_loss.set(xlabel="epoch", ylabel="train loss")
     ax_acc.plot(epochs, [row["train/accuracy"] for row in history], ".-", label="train clips")
     tested = [row for row in history if "eval/accuracy" in row]
-    ax_acc.plot([r["epoch"] for r in tested], [r["eval/accuracy"] for r in tested], "o-", label="test videos")
+    ax_acc.plot(
+        [r["epoch"] for r in tested],
+        [r["eval/accuracy"] for r in tested],
+        "o-",
+        label="test videos",
+    )
     ax_acc.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
     ax_acc.legend(fontsize=8)
     fig.tight_layout()

@@ -31,12 +31,17 @@ from edr.tasks.plots import save_confusion, save_learning_curve
 CHECKPOINT = "checkpoint.pt"
 
 
-def dataset_root(data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path) -> Path:
+def dataset_root(
+    data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path
+) -> Path:
     """``data_root`` when given; else the generated data set ``synthetic`` writes (once) in the cache."""
     if data_root:
         return Path(data_root)
     settings = json.dumps({"fn": synthetic.func.__name__, **synthetic.keywords}, sort_keys=True)
-    root = Path(cache_dir) / f"{synthetic.func.__name__}_{hashlib.sha1(settings.encode()).hexdigest()[:10]}"
+    root = (
+        Path(cache_dir)
+        / f"{synthetic.func.__name__}_{hashlib.sha1(settings.encode()).hexdigest()[:10]}"
+    )
     if not root.exists():
         print(f"no data.root given: generating a synthetic data set in {root}")
     return synthetic(root)
@@ -56,7 +61,11 @@ def _save_atomic(payload: dict[str, Any], path: Path) -> None:
 def _rng_state() -> dict[str, Any]:
     import random
 
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+    }
 
 
 def _set_rng_state(state: dict[str, Any]) -> None:
@@ -74,7 +83,9 @@ def evaluate(
     """(predicted, true) labels per video: argmax of the softmax averaged over its 10 crops."""
     model.eval()
     predicted, true = [], []
-    for crops, labels in tqdm(DataLoader(dataset, batch_size=batch_videos), desc="test", unit="batch", leave=False):
+    for crops, labels in tqdm(
+        DataLoader(dataset, batch_size=batch_videos), desc="test", unit="batch", leave=False
+    ):
         b, n = crops.shape[:2]
         logits = model(crops.flatten(0, 1).to(device))  # (B*10, classes)
         scores = logits.softmax(-1).view(b, n, -1).mean(1)
@@ -96,6 +107,7 @@ def train_recognition(
     seed: int,
     representation: Representation,
     backbone: Callable[..., nn.Module],
+    optimizer: Callable[..., torch.optim.Optimizer],
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
     data_root: str | None = None,
@@ -109,9 +121,6 @@ def train_recognition(
     epochs: int = 26,
     clips_per_epoch: int = 9000,
     batch_size: int = 15,
-    lr: float = 1e-3,
-    momentum: float = 0.9,
-    weight_decay: float = 5e-4,
     milestones: Sequence[int] = (13, 24),
     gamma: float = 0.1,
     eval_every: int = 1,
@@ -122,7 +131,13 @@ def train_recognition(
 ) -> dict[str, Any]:
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns metrics."""
     # ---- data --------------------------------------------------------------------------------
-    dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else "cpu" if device == "auto" else device)
+    dev = torch.device(
+        "cuda"
+        if device == "auto" and torch.cuda.is_available()
+        else "cpu"
+        if device == "auto"
+        else device
+    )
     root = dataset_root(data_root, synthetic, cache_dir)
     train_videos, test_videos = videos(root, train=True), videos(root, train=False)
     classes = train_videos.classes
@@ -136,16 +151,28 @@ def train_recognition(
     paths = [v.path for v in train_videos.videos + test_videos.videos]
     frame_source.cache.fill(paths, frame_source.decode, desc="decoding")
     if online is None:
-        source.cache.fill(paths, source.compute, desc=f"precomputing {type(representation).__name__}")
-    train_set = ClipDataset(train_videos, source, frames=frames, crop=crop, train=True, scales=scales, negate=negate)
-    test_set = ClipDataset(test_videos, source, frames=frames, crop=crop, train=False, negate=negate)
+        source.cache.fill(
+            paths, source.compute, desc=f"precomputing {type(representation).__name__}"
+        )
+    train_set = ClipDataset(
+        train_videos, source, frames=frames, crop=crop, train=True, scales=scales, negate=negate
+    )
+    test_set = ClipDataset(
+        test_videos, source, frames=frames, crop=crop, train=False, negate=negate
+    )
 
     # ---- model, optimizer, logger ------------------------------------------------------------
     in_channels = representation.out_channels(frame_source.channels)
-    net = backbone(in_channels=in_channels, num_classes=len(classes), frames=clip_frames, height=crop, width=crop)
+    net = backbone(
+        in_channels=in_channels,
+        num_classes=len(classes),
+        frames=clip_frames,
+        height=crop,
+        width=crop,
+    )
     model = RecognitionModel(online, net).to(dev)
-    optimizer = torch.optim.SGD(model.parameters(), lr=lr, momentum=momentum, weight_decay=weight_decay)
-    scheduler = torch.optim.lr_scheduler.MultiStepLR(optimizer, milestones=list(milestones), gamma=gamma)
+    opt = optimizer(model.parameters())
+    scheduler = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(milestones), gamma=gamma)
     from torchrl.record.loggers import get_logger  # heavy import, only where it is used
 
     log = get_logger(logger, logger_name=str(out_dir), experiment_name="logs") if logger else None
@@ -155,7 +182,7 @@ def train_recognition(
     if resume and checkpoint.is_file():
         state = torch.load(checkpoint, weights_only=False)
         model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
+        opt.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
         _set_rng_state(state["rng"])
         history, start_epoch = state["history"], state["epoch"]
@@ -166,24 +193,30 @@ def train_recognition(
     for epoch in range(start_epoch, epochs):
         model.train()
         sampler = RandomSampler(train_set, replacement=True, num_samples=clips_per_epoch)
-        loader = DataLoader(train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers)
+        loader = DataLoader(
+            train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers
+        )
         total, correct, loss_sum = 0, 0, 0.0
         bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", unit="batch")
         for clips, labels in bar:
             clips, labels = clips.to(dev), labels.to(dev)
             logits = model(clips)
             loss = loss_fn(logits, labels)
-            optimizer.zero_grad(set_to_none=True)
+            opt.zero_grad(set_to_none=True)
             loss.backward()
-            optimizer.step()
+            opt.step()
             total += len(labels)
             correct += int((logits.argmax(-1) == labels).sum())
             loss_sum += loss.item() * len(labels)
             bar.set_postfix(loss=f"{loss_sum / total:.3f}", acc=f"{correct / total:.2f}")
         if not np.isfinite(loss_sum):
             raise FloatingPointError(f"training loss is {loss_sum} at epoch {epoch + 1}")
-        row = {"epoch": epoch + 1, "train/loss": loss_sum / total, "train/accuracy": correct / total}
-        row["train/lr"] = optimizer.param_groups[0]["lr"]
+        row = {
+            "epoch": epoch + 1,
+            "train/loss": loss_sum / total,
+            "train/accuracy": correct / total,
+        }
+        row["train/lr"] = opt.param_groups[0]["lr"]
         scheduler.step()
         if (epoch + 1) % eval_every == 0 or epoch + 1 == epochs:
             predicted, true = evaluate(model, test_set, dev)
@@ -196,7 +229,7 @@ def train_recognition(
         _save_atomic(
             {
                 "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
+                "optimizer": opt.state_dict(),
                 "scheduler": scheduler.state_dict(),
                 "rng": _rng_state(),
                 "history": history,
