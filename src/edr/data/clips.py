@@ -118,7 +118,7 @@ class PrecomputedSource:
         return self.cache.get(path, self.compute)
 
 
-def _take_frames(video: torch.Tensor, start: int, frames: int) -> torch.Tensor:
+def take_frames(video: torch.Tensor, start: int, frames: int) -> torch.Tensor:
     """``frames`` frames from ``start``; a short video holds its last frame."""
     clip = video[start : start + frames]
     if clip.shape[0] < frames:
@@ -126,7 +126,7 @@ def _take_frames(video: torch.Tensor, start: int, frames: int) -> torch.Tensor:
     return clip
 
 
-def _resize(clip: torch.Tensor, size: int) -> torch.Tensor:
+def resize_clip(clip: torch.Tensor, size: int) -> torch.Tensor:
     """(T, C, h, w) -> (T, C, size, size) float32, bilinear."""
     clip = clip.float()
     if clip.shape[-2:] == (size, size):
@@ -155,7 +155,7 @@ def random_clip(
     side = max(1, round(float(scales[int(torch.randint(0, len(scales), ()))]) * min(h, w)))
     y = int(torch.randint(0, h - side + 1, ()))
     x = int(torch.randint(0, w - side + 1, ()))
-    clip = _resize(_take_frames(video, start, frames)[:, :, y : y + side, x : x + side], crop)
+    clip = resize_clip(take_frames(video, start, frames)[:, :, y : y + side, x : x + side], crop)
     return _flip(clip, negate) if bool(torch.randint(0, 2, ())) else clip
 
 
@@ -163,7 +163,7 @@ def ten_crops(
     video: torch.Tensor, frames: int, crop: int, negate: Sequence[int] = ()
 ) -> torch.Tensor:
     """(T, C, H, W) -> (10, frames, C, crop, crop): the first frames, 4 corners + centre, and flips."""
-    clip = _take_frames(video, 0, frames)
+    clip = take_frames(video, 0, frames)
     h, w = clip.shape[-2:]
     side = min(crop, h, w)
     corners = [
@@ -173,7 +173,7 @@ def ten_crops(
         (h - side, w - side),
         ((h - side) // 2, (w - side) // 2),
     ]
-    crops = [_resize(clip[:, :, y : y + side, x : x + side], crop) for y, x in corners]
+    crops = [resize_clip(clip[:, :, y : y + side, x : x + side], crop) for y, x in corners]
     crops += [_flip(c, negate) for c in crops]
     return torch.stack(crops)
 

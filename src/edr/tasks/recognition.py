@@ -29,6 +29,7 @@ from edr.representations import Representation
 from edr.tasks.plots import save_confusion, save_learning_curve
 
 CHECKPOINT = "checkpoint.pt"
+MODEL = "model.pt"  # the trained RecognitionModel, whole (torch.save), for later tasks
 
 
 def dataset_root(
@@ -47,7 +48,7 @@ def dataset_root(
     return synthetic(root)
 
 
-def _save_atomic(payload: dict[str, Any], path: Path) -> None:
+def _save_atomic(payload: object, path: Path) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")
     os.close(fd)
     try:
@@ -245,6 +246,7 @@ def train_recognition(
     probe = torch.stack([train_set[i][0] for i in range(min(4, len(train_set)))]).to(dev)
     model.eval()
     sparsity = activation_sparsity(model, probe)
+    _save_atomic(model.cpu(), out_dir / MODEL)
     save_learning_curve(history, out_dir / "learning_curve.png")
     save_confusion(matrix, classes, out_dir / "confusion.png")
     metrics: dict[str, Any] = {
