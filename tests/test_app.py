@@ -66,6 +66,8 @@ def test_multirun_sweep_writes_one_record_per_run(tmp_path) -> None:
     assert len(records) == 2
     seeds = {json.loads(r.read_text())["config"]["seed"] for r in records}
     assert seeds == {0, 1}
+    choices = json.loads(records[0].read_text())["choices"]
+    assert choices["task"] == "representation_demo" and choices["representation"] == "edr"
 
 
 def test_unknown_representation_is_a_clear_error(tmp_path) -> None:

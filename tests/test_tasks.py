@@ -1,0 +1,147 @@
+"""The recognition and DVS-transfer tasks through the real entry point, with debug=tiny."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
+
+import edr.tasks.recognition as recognition
+from edr.data.events import write_aedat2
+from edr.data.synthetic import KTH_ACTIONS
+from edr.representations import DVSSimulator
+from edr.run import CONF_DIR, run
+
+BACKBONES = sorted(p.stem for p in (Path(CONF_DIR) / "backbone").glob("*.yaml"))
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("cache")  # generated data shared by the tests of this module
+
+
+def _cfg(*overrides: str):
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+@pytest.mark.parametrize("backbone", BACKBONES)
+def test_every_backbone_config_builds(backbone: str) -> None:
+    cfg = _cfg(f"backbone={backbone}", "out_dir=unused")
+    net = instantiate(cfg.backbone)(in_channels=2, num_classes=6, frames=8, height=32, width=32)
+    assert net(torch.zeros(1, 8, 2, 32, 32)).shape == (1, 6)
+
+
+def test_kth_tiny_run_writes_record_checkpoint_and_figures(tmp_path, cache) -> None:
+    metrics = run(_cfg("task=kth", "debug=tiny", f"out_dir={tmp_path}", f"task.cache_dir={cache}"))
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["metrics"]["eval/accuracy"] == metrics["eval/accuracy"]
+    assert metrics["data/synthetic"] is True and metrics["data/train_videos"] == 18
+    assert len(metrics["eval/confusion"]) == 6 and sum(map(sum, metrics["eval/confusion"])) == 6
+    assert set(KTH_ACTIONS) == {
+        k.split("/")[-1] for k in metrics if k.startswith("eval/per_class/")
+    }
+    assert 0.9 < metrics["sparsity/representation"] <= 1.0
+    assert [row["epoch"] for row in metrics["history"]] == [1, 2]
+    for name in ("checkpoint.pt", "model.pt", "learning_curve.png", "confusion.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert (tmp_path / "logs").is_dir()  # torchrl's CSV logger
+
+
+def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(tmp_path, cache) -> None:
+    metrics = run(
+        _cfg(
+            "task=ucf101", "debug=tiny", "backbone=ltc", "representation=farneback",
+            "backbone.widths=[4,4,4,4,4]", "backbone.fc=16", f"out_dir={tmp_path}", f"task.cache_dir={cache}",
+        )
+    )  # fmt: skip
+    assert metrics["eval/chance"] == pytest.approx(1 / 6)
+    assert any(p.name.startswith("frames_40x30_rgb_all_farneback_") for p in cache.iterdir())
+    assert np.isfinite(metrics["train/loss"])
+
+
+def test_resume_after_an_interrupted_run_matches_an_uninterrupted_one(
+    tmp_path, cache, monkeypatch
+) -> None:
+    overrides = ("task=kth", "debug=tiny", f"task.cache_dir={cache}", "task.logger=")
+    whole = run(_cfg(*overrides, f"out_dir={tmp_path / 'whole'}"))
+
+    real_evaluate = recognition.evaluate
+    calls = {"n": 0}
+
+    def dies_in_epoch_two(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt("killed")
+        return real_evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(recognition, "evaluate", dies_in_epoch_two)
+    with pytest.raises(KeyboardInterrupt):
+        run(_cfg(*overrides, f"out_dir={tmp_path / 'killed'}"))
+    assert torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["epoch"] == 1
+    assert not (tmp_path / "killed" / "run.json").exists()
+    monkeypatch.setattr(recognition, "evaluate", real_evaluate)
+    resumed = run(_cfg(*overrides, f"out_dir={tmp_path / 'killed'}", "task.resume=true"))
+
+    assert resumed["history"] == whole["history"]
+    a = torch.load(tmp_path / "whole" / "model.pt", weights_only=False).state_dict()
+    b = torch.load(tmp_path / "killed" / "model.pt", weights_only=False).state_dict()
+    for key in a:
+        torch.testing.assert_close(a[key], b[key])
+
+
+def test_dvs_transfer_with_simulated_events(tmp_path, cache) -> None:
+    metrics = run(
+        _cfg(
+            "task=dvs_transfer",
+            "debug=tiny",
+            f"out_dir={tmp_path}",
+            f"task.pretrain.cache_dir={cache}",
+        )
+    )
+    assert metrics["data/train_recordings"] + metrics["data/test_recordings"] == 18
+    assert metrics["data/train_recordings"] == 12  # 70 % of 3 per class, rounded per class
+    assert (
+        0.0 <= metrics["eval/accuracy"] <= 1.0 and 0.0 <= metrics["eval/zero_shot_accuracy"] <= 1.0
+    )
+    assert (tmp_path / "pretrain" / "model.pt").is_file() and (tmp_path / "confusion.png").is_file()
+
+
+def test_dvs_transfer_reads_recordings_from_disk(tmp_path, cache) -> None:
+    recordings = tmp_path / "dvs"
+    rng = np.random.default_rng(0)
+    sim = DVSSimulator()
+    for action in KTH_ACTIONS:
+        (recordings / action).mkdir(parents=True)
+        for i in range(2):
+            frames = rng.uniform(20, 200, (6, 128, 128)).round()
+            write_aedat2(recordings / action / f"user{i}.aedat", sim.simulate(frames))
+    metrics = run(
+        _cfg(
+            "task=dvs_transfer", "debug=tiny", f"out_dir={tmp_path / 'run'}", f"task.pretrain.cache_dir={cache}",
+            f"task.dvs_root={recordings}",
+        )
+    )  # fmt: skip
+    assert metrics["data/events"].startswith("recordings under")
+    assert metrics["data/train_recordings"] + metrics["data/test_recordings"] == 12
+
+
+def test_dvs_transfer_refuses_a_multi_timescale_edr(tmp_path, cache) -> None:
+    with pytest.raises(ValueError, match="one ON/OFF pair"):
+        run(
+            _cfg(
+                "task=dvs_transfer", "debug=tiny", "representation=edr_k3", f"out_dir={tmp_path}",
+                f"task.pretrain.cache_dir={cache}",
+            )
+        )  # fmt: skip
+
+
+def test_experiment_configs_compose() -> None:
+    cfg = _cfg("experiment=kth_demo", "out_dir=unused")
+    assert cfg.task.crop == 32 and cfg.optimizer._target_ == "torch.optim.Adam"
+    assert cfg.task.videos._target_.endswith("kth")
