@@ -94,7 +94,7 @@ def test_ucf101_layout_and_official_splits(ucf_root) -> None:
 
 
 def test_missing_or_malformed_roots_say_which_layout(tmp_path, ucf_root) -> None:
-    with pytest.raises(FileNotFoundError, match="personXX_<action>_dY_uncomp.avi"):
+    with pytest.raises(FileNotFoundError, match=r"personXX_<action>_dY_uncomp\.avi"):
         kth(tmp_path / "nope")
     (tmp_path / "boxing").mkdir()
     with pytest.raises(FileNotFoundError, match="action folders"):
