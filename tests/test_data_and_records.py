@@ -42,6 +42,7 @@ def test_record_is_written_whole_or_not_at_all(tmp_path) -> None:
     path = write_run_record(
         tmp_path,
         task="demo",
+        choices={"task": "demo"},
         config={"a": 1},
         overrides=["a=1"],
         metrics={"x/y": 2.0},
