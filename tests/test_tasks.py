@@ -145,3 +145,30 @@ def test_experiment_configs_compose() -> None:
     cfg = _cfg("experiment=kth_demo", "out_dir=unused")
     assert cfg.task.crop == 32 and cfg.optimizer._target_ == "torch.optim.Adam"
     assert cfg.task.videos._target_.endswith("kth")
+
+
+@pytest.mark.parametrize("experiment", ["table4_kth", "table2_ucf101"])
+def test_every_cell_of_a_paper_sweep_composes(experiment: str) -> None:
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        base = compose(
+            config_name="config", overrides=[f"experiment={experiment}"], return_hydra_config=True
+        )
+        grid = {k: str(v).split(",") for k, v in base.hydra.sweeper.params.items()}
+        for rep in grid["representation"]:
+            for backbone in grid.get(
+                "backbone", [base.hydra.runtime.choices.get("backbone", "ltc")]
+            ):
+                cfg = compose(
+                    config_name="config",
+                    overrides=[
+                        f"experiment={experiment}",
+                        f"representation={rep}",
+                        f"backbone={backbone}",
+                    ],
+                )
+                representation = instantiate(cfg.representation)
+                net = instantiate(cfg.backbone)(
+                    in_channels=representation.out_channels(1 if cfg.task.gray else 3), num_classes=6,
+                    frames=8, height=cfg.task.crop, width=cfg.task.crop,
+                )  # fmt: skip
+                assert sum(p.numel() for p in net.parameters()) > 0
