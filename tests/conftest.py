@@ -6,6 +6,10 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+
+from edr.run import CONF_DIR
 
 
 def translating_clip(
@@ -43,3 +47,9 @@ def ramp_clip(
     """(1, T, C, H, W) float32: every pixel takes ``values[t]`` at frame t."""
     v = torch.tensor(values, dtype=torch.float32).view(1, -1, 1, 1, 1)
     return v.expand(1, len(values), channels, height, width).contiguous()
+
+
+def compose_config(*overrides: str) -> DictConfig:
+    """The app's config with ``overrides``, composed as ``edr-run`` would (without Hydra's run)."""
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))

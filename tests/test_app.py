@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
+from conftest import compose_config
 from edr import bench, tables
 from edr.representations import Representation
 from edr.run import CONF_DIR, run
@@ -19,14 +19,9 @@ from edr.run import CONF_DIR, run
 REPRESENTATIONS = sorted(p.stem for p in (Path(CONF_DIR) / "representation").glob("*.yaml"))
 
 
-def _compose(*overrides: str):
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
-
-
 @pytest.mark.parametrize("name", REPRESENTATIONS)
 def test_every_representation_config_instantiates(name: str) -> None:
-    cfg = _compose(f"representation={name}", "out_dir=unused")
+    cfg = compose_config(f"representation={name}", "out_dir=unused")
     if name == "brox":
         with pytest.raises(Exception, match="not yet available"):
             instantiate(cfg.representation)
@@ -37,7 +32,7 @@ def test_every_representation_config_instantiates(name: str) -> None:
 
 
 def test_demo_runs_and_writes_a_record(tmp_path) -> None:
-    cfg = _compose("debug=tiny", f"out_dir={tmp_path}")
+    cfg = compose_config("debug=tiny", f"out_dir={tmp_path}")
     assert cfg.threads == 1 and cfg.task.frames == 8
     metrics = run(cfg)
     record = json.loads((tmp_path / "run.json").read_text())

@@ -86,7 +86,7 @@ def test_ltc_paper_sizes() -> None:
 def test_ft_rcn_has_no_cross_channel_recurrent_weights() -> None:
     head = FTRCN(channels=3, height=4, width=5, num_classes=2, hidden=6)
     assert head.recurrent.shape == (3, 6, 20, 20)  # (gate, channel, location, location)
-    state = torch.zeros(1, 6, 20, requires_grad=True)
+    state = torch.zeros(1, 6, 4, 5, requires_grad=True)
     for gate in range(3):
         out = head.recurrent_term(state + 0.5, gate)
         for c in range(6):
@@ -101,7 +101,7 @@ def test_ft_rcn_has_no_cross_channel_recurrent_weights() -> None:
 def test_gru_rcn_recurrence_mixes_channels() -> None:
     # The contrast FT-RCN is defined by: a conv GRU's recurrent weights couple channels.
     head = GRURCN(channels=3, height=4, width=4, num_classes=2, hidden=4)
-    assert head.recurrent_candidate.weight.shape[:2] == (4, 4)
+    assert all(conv.weight.shape[:2] == (4, 4) for conv in head.recurrent)
 
 
 def test_activation_sparsity_sees_representation_and_relus() -> None:

@@ -12,6 +12,7 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 import edr.tasks.recognition as recognition
+from conftest import compose_config
 from edr.data.events import write_aedat2
 from edr.data.synthetic import KTH_ACTIONS
 from edr.representations import DVSSimulator
@@ -25,20 +26,17 @@ def cache(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("cache")  # generated data shared by the tests of this module
 
 
-def _cfg(*overrides: str):
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
-
-
 @pytest.mark.parametrize("backbone", BACKBONES)
 def test_every_backbone_config_builds(backbone: str) -> None:
-    cfg = _cfg(f"backbone={backbone}", "out_dir=unused")
+    cfg = compose_config(f"backbone={backbone}", "out_dir=unused")
     net = instantiate(cfg.backbone)(in_channels=2, num_classes=6, frames=8, height=32, width=32)
     assert net(torch.zeros(1, 8, 2, 32, 32)).shape == (1, 6)
 
 
 def test_kth_tiny_run_writes_record_checkpoint_and_figures(tmp_path, cache) -> None:
-    metrics = run(_cfg("task=kth", "debug=tiny", f"out_dir={tmp_path}", f"task.cache_dir={cache}"))
+    metrics = run(
+        compose_config("task=kth", "debug=tiny", f"out_dir={tmp_path}", f"task.cache_dir={cache}")
+    )
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["metrics"]["eval/accuracy"] == metrics["eval/accuracy"]
     assert metrics["data/synthetic"] is True and metrics["data/train_videos"] == 18
@@ -55,7 +53,7 @@ def test_kth_tiny_run_writes_record_checkpoint_and_figures(tmp_path, cache) -> N
 
 def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(tmp_path, cache) -> None:
     metrics = run(
-        _cfg(
+        compose_config(
             "task=ucf101", "debug=tiny", "backbone=ltc", "representation=farneback",
             "backbone.widths=[4,4,4,4,4]", "backbone.fc=16", f"out_dir={tmp_path}", f"task.cache_dir={cache}",
         )
@@ -69,7 +67,7 @@ def test_resume_after_an_interrupted_run_matches_an_uninterrupted_one(
     tmp_path, cache, monkeypatch
 ) -> None:
     overrides = ("task=kth", "debug=tiny", f"task.cache_dir={cache}", "task.logger=")
-    whole = run(_cfg(*overrides, f"out_dir={tmp_path / 'whole'}"))
+    whole = run(compose_config(*overrides, f"out_dir={tmp_path / 'whole'}"))
 
     real_evaluate = recognition.evaluate
     calls = {"n": 0}
@@ -82,11 +80,11 @@ def test_resume_after_an_interrupted_run_matches_an_uninterrupted_one(
 
     monkeypatch.setattr(recognition, "evaluate", dies_in_epoch_two)
     with pytest.raises(KeyboardInterrupt):
-        run(_cfg(*overrides, f"out_dir={tmp_path / 'killed'}"))
+        run(compose_config(*overrides, f"out_dir={tmp_path / 'killed'}"))
     assert torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["epoch"] == 1
     assert not (tmp_path / "killed" / "run.json").exists()
     monkeypatch.setattr(recognition, "evaluate", real_evaluate)
-    resumed = run(_cfg(*overrides, f"out_dir={tmp_path / 'killed'}", "task.resume=true"))
+    resumed = run(compose_config(*overrides, f"out_dir={tmp_path / 'killed'}", "task.resume=true"))
 
     assert resumed["history"] == whole["history"]
     a = torch.load(tmp_path / "whole" / "model.pt", weights_only=False).state_dict()
@@ -97,7 +95,7 @@ def test_resume_after_an_interrupted_run_matches_an_uninterrupted_one(
 
 def test_dvs_transfer_with_simulated_events(tmp_path, cache) -> None:
     metrics = run(
-        _cfg(
+        compose_config(
             "task=dvs_transfer",
             "debug=tiny",
             f"out_dir={tmp_path}",
@@ -122,7 +120,7 @@ def test_dvs_transfer_reads_recordings_from_disk(tmp_path, cache) -> None:
             frames = rng.uniform(20, 200, (6, 128, 128)).round()
             write_aedat2(recordings / action / f"user{i}.aedat", sim.simulate(frames))
     metrics = run(
-        _cfg(
+        compose_config(
             "task=dvs_transfer", "debug=tiny", f"out_dir={tmp_path / 'run'}", f"task.pretrain.cache_dir={cache}",
             f"task.dvs_root={recordings}",
         )
@@ -134,7 +132,7 @@ def test_dvs_transfer_reads_recordings_from_disk(tmp_path, cache) -> None:
 def test_dvs_transfer_refuses_a_multi_timescale_edr(tmp_path, cache) -> None:
     with pytest.raises(ValueError, match="one ON/OFF pair"):
         run(
-            _cfg(
+            compose_config(
                 "task=dvs_transfer", "debug=tiny", "representation=edr_k3", f"out_dir={tmp_path}",
                 f"task.pretrain.cache_dir={cache}",
             )
@@ -142,7 +140,7 @@ def test_dvs_transfer_refuses_a_multi_timescale_edr(tmp_path, cache) -> None:
 
 
 def test_experiment_configs_compose() -> None:
-    cfg = _cfg("experiment=kth_demo", "out_dir=unused")
+    cfg = compose_config("experiment=kth_demo", "out_dir=unused")
     assert cfg.task.crop == 32 and cfg.optimizer._target_ == "torch.optim.Adam"
     assert cfg.task.videos._target_.endswith("kth")
 

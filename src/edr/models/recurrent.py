@@ -32,26 +32,18 @@ class LRCN(nn.Module):
         return self.classifier(h[-1])
 
 
-class GRURCN(nn.Module):
-    def __init__(
-        self,
-        channels: int,
-        height: int,
-        width: int,
-        num_classes: int,
-        hidden: int = 64,
-        kernel: int = 3,
-    ) -> None:
+class _GatedRecurrentHead(nn.Module):
+    """A GRU over feature maps; subclasses give the recurrent term of each gate (z, r, n)."""
+
+    def __init__(self, channels: int, num_classes: int, hidden: int, kernel: int) -> None:
         super().__init__()
         self.hidden = hidden
         self.input_gates = nn.Conv2d(channels, 3 * hidden, kernel, padding=kernel // 2)  # z, r, n
-        self.recurrent_gates = nn.Conv2d(
-            hidden, 2 * hidden, kernel, padding=kernel // 2, bias=False
-        )
-        self.recurrent_candidate = nn.Conv2d(
-            hidden, hidden, kernel, padding=kernel // 2, bias=False
-        )
         self.classifier = nn.Linear(hidden, num_classes)
+
+    def recurrent_term(self, state: torch.Tensor, gate: int) -> torch.Tensor:
+        """(B, hidden, h, w) -> (B, hidden, h, w): what the previous state adds to ``gate``."""
+        raise NotImplementedError
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         b, t, _, h, w = features.shape
@@ -59,14 +51,14 @@ class GRURCN(nn.Module):
         inputs = self.input_gates(features.flatten(0, 1)).view(b, t, 3, self.hidden, h, w)
         for step in range(t):
             xz, xr, xn = inputs[:, step].unbind(1)
-            hz, hr = self.recurrent_gates(state).view(b, 2, self.hidden, h, w).unbind(1)
-            z, r = torch.sigmoid(xz + hz), torch.sigmoid(xr + hr)
-            candidate = torch.tanh(xn + self.recurrent_candidate(r * state))
+            z = torch.sigmoid(xz + self.recurrent_term(state, 0))
+            r = torch.sigmoid(xr + self.recurrent_term(state, 1))
+            candidate = torch.tanh(xn + self.recurrent_term(r * state, 2))
             state = (1 - z) * candidate + z * state  # (B, hidden, h, w)
         return self.classifier(state.mean(dim=(2, 3)))
 
 
-class FTRCN(nn.Module):
+class GRURCN(_GatedRecurrentHead):
     def __init__(
         self,
         channels: int,
@@ -76,28 +68,33 @@ class FTRCN(nn.Module):
         hidden: int = 64,
         kernel: int = 3,
     ) -> None:
-        super().__init__()
-        self.hidden = hidden
+        super().__init__(channels, num_classes, hidden, kernel)
+        self.recurrent = nn.ModuleList(
+            nn.Conv2d(hidden, hidden, kernel, padding=kernel // 2, bias=False) for _ in range(3)
+        )
+
+    def recurrent_term(self, state: torch.Tensor, gate: int) -> torch.Tensor:
+        return self.recurrent[gate](state)  # every channel at every neighbouring location
+
+
+class FTRCN(_GatedRecurrentHead):
+    def __init__(
+        self,
+        channels: int,
+        height: int,
+        width: int,
+        num_classes: int,
+        hidden: int = 64,
+        kernel: int = 3,
+    ) -> None:
+        super().__init__(channels, num_classes, hidden, kernel)
         locations = height * width
-        self.input_gates = nn.Conv2d(channels, 3 * hidden, kernel, padding=kernel // 2)  # z, r, n
         # (gate, channel, from location, to location): each channel tracks its own map.
         self.recurrent = nn.Parameter(
             torch.randn(3, hidden, locations, locations) / math.sqrt(locations)
         )
-        self.classifier = nn.Linear(hidden, num_classes)
 
     def recurrent_term(self, state: torch.Tensor, gate: int) -> torch.Tensor:
-        """(B, hidden, h*w) -> (B, hidden, h*w): within each channel, every location to every one."""
-        return torch.einsum("bcp,cpq->bcq", state, self.recurrent[gate])
-
-    def forward(self, features: torch.Tensor) -> torch.Tensor:
-        b, t, _, h, w = features.shape
-        state = features.new_zeros(b, self.hidden, h * w)
-        inputs = self.input_gates(features.flatten(0, 1)).view(b, t, 3, self.hidden, h * w)
-        for step in range(t):
-            xz, xr, xn = inputs[:, step].unbind(1)
-            z = torch.sigmoid(xz + self.recurrent_term(state, 0))
-            r = torch.sigmoid(xr + self.recurrent_term(state, 1))
-            candidate = torch.tanh(xn + self.recurrent_term(r * state, 2))
-            state = (1 - z) * candidate + z * state  # (B, hidden, h*w)
-        return self.classifier(state.mean(dim=2))
+        """Within each channel, every location to every location; no channel reads another."""
+        flat = state.flatten(2)  # (B, hidden, h*w)
+        return torch.einsum("bcp,cpq->bcq", flat, self.recurrent[gate]).view_as(state)
