@@ -1,0 +1,1 @@
+"""Atari reinforcement learning: envs, EDR as a streaming torchrl transform, PAAC."""

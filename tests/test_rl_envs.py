@@ -1,0 +1,93 @@
+"""Atari envs through ale-py and torchrl, and EDR as a streaming torchrl transform."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from edr.representations import EDR
+from edr.rl.envs import gym_atari, make_atari_env
+from edr.rl.transform import EDRTransform
+
+
+def _edr_transform(env) -> EDRTransform:
+    (found,) = [t for t in env.transform if isinstance(t, EDRTransform)]
+    return found
+
+
+@pytest.mark.parametrize(("mode", "num_envs"), [("single", 1), ("serial", 2), ("parallel", 2)])
+def test_env_specs_hold_with_edr(mode: str, num_envs: int) -> None:
+    env = make_atari_env("Pong", num_envs=num_envs, mode=mode, edr=EDR(color="gray"), frame_stack=2)
+    try:
+        check_env_specs(env)
+        batch = () if mode == "single" else (num_envs,)
+        assert env.observation_spec["observation"].shape == (*batch, 2 * (3 + 2), 84, 84)
+        assert env.observation_spec["edr"].shape == (*batch, 2, 84, 84)
+    finally:
+        env.close()
+
+
+def test_observation_combinations() -> None:
+    for fdr, edr, stack, channels in (
+        ("gray", None, 4, 4),
+        ("none", EDR(half_lives=(1, 3.8), color="gray"), 1, 4),
+    ):
+        env = make_atari_env("Pong", mode="single", fdr=fdr, edr=edr, frame_stack=stack)
+        assert env.reset()["observation"].shape == (channels, 84, 84)
+        env.close()
+    with pytest.raises(ValueError, match="FDR, EDR or both"):
+        make_atari_env("Pong", mode="single", fdr="none", edr=None)
+
+
+def test_presets() -> None:
+    paac, v5 = gym_atari("Breakout", "paac"), gym_atari("Breakout", "v5")
+    assert paac.observation_space.shape == v5.observation_space.shape == (84, 84, 3)
+    assert (
+        paac.unwrapped._frameskip == 1 and v5.unwrapped._frameskip == 4
+    )  # paac skips in the wrapper
+    with pytest.raises(ValueError, match="preset"):
+        gym_atari("Pong", "v4")
+
+
+def test_transform_equals_edr_step_on_the_same_frames() -> None:
+    env = make_atari_env("Pong", mode="single", fdr="none", edr=EDR(color="gray"))
+    env.set_seed(0)
+    rollout = env.rollout(25, break_when_any_done=False)
+    env.close()
+    frames = torch.cat([rollout["pixels"][:1], rollout["next", "pixels"]]).permute(
+        0, 3, 1, 2
+    )  # (T+1, 3, H, W)
+    expected = EDR(color="gray")(frames.unsqueeze(0))[0]  # (T+1, 2, H, W)
+    got = torch.cat([rollout["edr"][:1], rollout["next", "edr"]])
+    torch.testing.assert_close(got, expected)
+    assert got[1:].abs().sum() > 0  # Pong's ball and paddles move
+
+
+def test_partial_reset_restarts_only_that_env() -> None:
+    env = make_atari_env("Pong", num_envs=3, mode="serial", fdr="none", edr=EDR(color="gray"))
+    env.set_seed(1)
+    rollout = env.rollout(6, break_when_any_done=False)
+    transform = _edr_transform(env)
+    ema_before, last_before = transform._state.ema.clone(), transform._last.clone()
+    mask = torch.tensor([[False], [True], [False]])
+    # As a collector does: the current step's data, with the flag of the env that ended.
+    out = env.reset(rollout[:, -1]["next"].clone().set("_reset", mask))
+    ema_after = transform._state.ema
+    torch.testing.assert_close(ema_after[[0, 2]], ema_before[[0, 2]])  # untouched
+    torch.testing.assert_close(transform._last[[0, 2]], last_before[[0, 2]])
+    torch.testing.assert_close(out["edr"][[0, 2]], last_before[[0, 2]])
+    pixels = out["pixels"][1].permute(2, 0, 1).float()  # (3, H, W)
+    luma = 0.299 * pixels[0] + 0.587 * pixels[1] + 0.114 * pixels[2] + 1.0
+    torch.testing.assert_close(ema_after[1, 0, 0], luma)  # restarted from its new first frame
+    assert out["edr"][1].abs().max() == 0
+    assert not torch.equal(ema_after[1], ema_before[1])
+    env.close()
+
+
+def test_transform_is_not_for_stored_data() -> None:
+    with pytest.raises(NotImplementedError, match="stateful"):
+        EDRTransform()(
+            TensorDict({"pixels": torch.zeros(2, 8, 8, 3, dtype=torch.uint8)}, batch_size=[2])
+        )
