@@ -133,6 +133,54 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
     ]
 
 
+def atari_throughput(game: str, num_envs: int, steps: int, repeats: int, warmup: int) -> list[Row]:
+    """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
+
+    Both use the paper's preset and RGB frames stacked 4 times; the EDR run adds EDR on gray
+    (Appendix C's 5 channels per frame). Random actions; ``fps`` counts env steps of all envs.
+    The two envs live side by side and take turns, so that load drifts hit both alike.
+    """
+    from edr.rl.envs import make_atari_env  # ale-py and torchrl load only for this mode
+
+    def play(env: Any) -> None:  # as a collector steps: act, step, reset what ended; keep nothing
+        td = env.reset()
+        for _ in range(steps):
+            _, td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))
+
+    configs = {"FDR RGB, 4 frames": None, "FDR RGB + EDR gray, 4 frames": EDR(color="gray")}
+    envs = {
+        name: make_atari_env(game, num_envs=num_envs, mode="parallel", edr=edr, frame_stack=4)
+        for name, edr in configs.items()
+    }
+    times: dict[str, list[float]] = {name: [] for name in envs}
+    try:
+        for env in envs.values():
+            env.set_seed(0)
+            for _ in range(warmup):
+                play(env)
+        for _ in tqdm(range(repeats), desc="atari rollouts", unit="pair"):
+            for name, env in envs.items():
+                start = time.perf_counter()
+                play(env)
+                times[name].append(time.perf_counter() - start)
+    finally:
+        for env in envs.values():
+            env.close()
+    implementation = f"torchrl ParallelEnv, {num_envs} envs, paac preset"
+    frames = steps * num_envs
+    return [
+        Row(
+            f"{game}: {name}",
+            implementation,
+            frames,
+            "84x84",
+            statistics.median(t),
+            frames / statistics.median(t),
+        )
+        for name, t in times.items()
+    ]
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="edr-bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--video", type=Path, help="a real video to time on (default: generated)")
@@ -145,6 +193,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed calls before timing")
     parser.add_argument("--quick", action="store_true", help="2 repeats, for a smoke test")
+    parser.add_argument(
+        "--atari", type=int, metavar="ENVS", default=0,
+        help="instead: env steps/s of ENVS parallel Atari envs with and without the EDR transform",
+    )  # fmt: skip
+    parser.add_argument("--game", default="Pong", help="the Atari game for --atari")
+    parser.add_argument(
+        "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"
+    )
     parser.add_argument(
         "--system-malloc",
         action="store_true",
@@ -160,6 +216,20 @@ def main(argv: list[str] | None = None) -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+
+    if args.atari:
+        rows = atari_throughput(args.game, args.atari, args.steps, repeats, args.warmup)
+        stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
+        machine = machine_info()
+        record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp, "repeats": repeats,
+                  "warmup": args.warmup, "machine": machine, "rows": [asdict(r) for r in rows]}  # fmt: skip
+        path = write_json_atomic(args.out_dir / f"atari_{machine['hostname']}_{stamp}.json", record)
+        for r in rows:
+            print(f"{r.name:45s} {r.fps:10.1f} env steps/s  ({4 * r.fps:.0f} emulator frames/s)")
+        print(
+            f"EDR costs {100 * (1 - rows[1].fps / rows[0].fps):.1f} % of throughput\nrecord: {path}"
+        )
+        return
 
     # ---- the clip ----------------------------------------------------------------------------
     size = (args.width, args.height)

@@ -51,7 +51,7 @@ class EDRTransform(Transform):
 
     def _emit(self, tensordict: TensorDictBase, events: torch.Tensor) -> TensorDictBase:
         batch = tensordict.get(self.in_keys[0]).shape[:-3]
-        tensordict.set(self.out_keys[0], events.reshape(*batch, *events.shape[1:]).clone())
+        tensordict.set(self.out_keys[0], events.reshape(*batch, *events.shape[1:]))
         return tensordict
 
     @torch.no_grad()
@@ -72,6 +72,7 @@ class EDRTransform(Transform):
             rows = mask.nonzero().squeeze(1)
             fresh, state = self.edr.step(frames[rows])
             self._state.ema[rows] = state.ema
+            self._last = self._last.clone()  # earlier outputs may live on in collected data
             self._last[rows] = fresh
         return self._emit(tensordict_reset, self._last)
 
