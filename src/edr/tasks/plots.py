@@ -48,3 +48,15 @@ def save_confusion(matrix: np.ndarray, classes: Sequence[str], path: Path) -> Pa
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def save_score_curve(history: Sequence[dict[str, float]], path: Path, title: str = "") -> Path:
+    """Mean score of recent training episodes against env steps (the paper's Figure 5)."""
+    scored = [row for row in history if "train/score" in row]
+    fig, ax = plt.subplots(figsize=(5, 3))
+    ax.plot([r["frames"] for r in scored], [r["train/score"] for r in scored], "k-")
+    ax.set(xlabel="env steps", ylabel="mean score (last 20 episodes)", title=title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,256 @@
+"""Atari with PAAC (the paper's Table 1 and Figure 5): FDR or FDR+EDR input, EDR on the fly.
+
+Top to bottom: envs and network; the loop (torchrl's collector gathers ``rollout_steps`` steps
+of every env; n-step returns bootstrapped from the value of the state after the rollout;
+torchrl's ``A2CLoss`` with entropy bonus; RMSprop with the gradient's L2 norm clipped and the
+learning rate decaying linearly to 0); checkpoints; then ``eval_plays`` full games scored
+(min / max / mean, Table 1's columns) and the training curve (score against env steps).
+
+Frames here count env steps — agent decisions, summed over envs; with the frame skip of 4
+each is 4 emulator frames.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import InteractionType, set_interaction_type
+from torch.distributions import OneHotCategorical
+from torchrl.collectors import Collector
+from torchrl.envs import InitTracker, TransformedEnv
+from torchrl.envs.utils import step_mdp
+from torchrl.modules import ProbabilisticActor
+from torchrl.objectives import A2CLoss
+from tqdm import tqdm
+
+from edr.representations import EDR
+from edr.rl.envs import Preset, make_atari_env
+from edr.rl.paac import Core, PAACNetwork, paac_module, recurrent_primer
+from edr.tasks.plots import save_score_curve
+from edr.tasks.recognition import CHECKPOINT, _rng_state, _save_atomic, _set_rng_state
+
+
+def _env(network: PAACNetwork | None, **kwargs: Any) -> TransformedEnv:
+    env = make_atari_env(**kwargs)
+    env.append_transform(InitTracker())
+    if network is not None:
+        env.append_transform(recurrent_primer(network))
+    return env
+
+
+def _actor(network: PAACNetwork, env: TransformedEnv) -> ProbabilisticActor:
+    return ProbabilisticActor(
+        paac_module(network),
+        in_keys=["logits"],
+        distribution_class=OneHotCategorical,
+        spec=env.action_spec,
+        return_log_prob=True,
+    )
+
+
+@torch.no_grad()
+def n_step_targets(data: TensorDictBase, network: PAACNetwork, gamma: float) -> TensorDictBase:
+    """Add ``value_target`` and ``advantage`` (N, T, 1) to a rollout (N, T) from the collector."""
+    last = data[:, -1]["next"]
+    _, bootstrap, _, _ = network(
+        last["observation"], last["rs_h"], last["rs_c"], torch.zeros_like(last["done"])
+    )  # (N, 1)
+    rewards, done = data["next", "reward"], data["next", "done"].to(bootstrap.dtype)
+    returns = torch.empty_like(rewards)
+    running = bootstrap
+    for t in reversed(range(rewards.shape[1])):
+        running = rewards[:, t] + gamma * running * (1 - done[:, t])
+        returns[:, t] = running
+    data.set("value_target", returns)
+    data.set("advantage", returns - data["state_value"])
+    return data
+
+
+@torch.no_grad()
+def play(network: PAACNetwork, env: TransformedEnv, plays: int, max_steps: int) -> list[float]:
+    """Scores of ``plays`` whole games (raw rewards), the policy sampling its actions."""
+    actor = _actor(network, env)
+    scores = []
+    with set_interaction_type(InteractionType.RANDOM):
+        for _ in tqdm(range(plays), desc="evaluation", unit="game", leave=False):
+            td, score = env.reset(), 0.0
+            for _ in range(max_steps):
+                td = env.step(actor(td))
+                score += float(td["next", "reward"].sum())
+                if td["next", "done"].any():
+                    break
+                td = step_mdp(td)
+            scores.append(score)
+    return scores
+
+
+def train_paac(
+    *,
+    out_dir: Path,
+    seed: int,
+    game: str = "Pong",
+    preset: Preset = "paac",
+    num_envs: int = 32,
+    env_mode: str = "parallel",
+    fdr: str = "rgb",
+    edr: EDR | None = None,
+    frame_stack: int = 1,
+    core: Core = "lstm",
+    total_frames: int = 80_000_000,
+    lr_decay_frames: int = 80_000_000,
+    rollout_steps: int = 5,
+    lr: float = 0.0224,
+    rmsprop_alpha: float = 0.99,
+    rmsprop_eps: float = 0.1,
+    gamma: float = 0.99,
+    entropy_coeff: float = 0.02,
+    critic_coeff: float = 0.5,
+    max_grad_norm: float = 3.0,
+    eval_plays: int = 30,
+    eval_max_steps: int = 27_000,
+    checkpoint_every: int = 500,
+    resume: bool = False,
+    logger: str = "csv",
+) -> dict[str, Any]:
+    """Train PAAC on ``game``, then score ``eval_plays`` games; returns metrics."""
+    # ---- envs, network, loss, optimizer ------------------------------------------------------
+    env_kwargs = {
+        "game": game,
+        "preset": preset,
+        "fdr": fdr,
+        "edr": edr,
+        "frame_stack": frame_stack,
+    }
+    probe = make_atari_env(mode="single", **env_kwargs)
+    channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
+    probe.close()
+    network = PAACNetwork(channels, actions, core)
+    env = _env(network, num_envs=num_envs, mode=env_mode, **env_kwargs)
+    env.set_seed(seed)
+    actor = _actor(network, env)
+    loss_fn = A2CLoss(
+        actor_network=actor,
+        critic_network=paac_module(network),
+        entropy_coeff=entropy_coeff,
+        critic_coeff=critic_coeff,
+        loss_critic_type="l2",
+        functional=False,
+    )
+    optimizer = torch.optim.RMSprop(
+        network.parameters(), lr=lr, alpha=rmsprop_alpha, eps=rmsprop_eps
+    )
+    batch = num_envs * rollout_steps
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda update: max(0.0, 1.0 - update * batch / lr_decay_frames)
+    )
+    from torchrl.record.loggers import get_logger  # heavy import, only where it is used
+
+    log = get_logger(logger, logger_name=str(out_dir), experiment_name="logs") if logger else None
+    frames_done, history = 0, []
+    checkpoint = out_dir / CHECKPOINT
+    if resume and checkpoint.is_file():
+        state = torch.load(checkpoint, weights_only=False)
+        network.load_state_dict(state["network"])
+        optimizer.load_state_dict(state["optimizer"])
+        schedule.load_state_dict(state["schedule"])
+        _set_rng_state(state["rng"])
+        frames_done, history = state["frames"], state["history"]
+        print(f"resuming {checkpoint} at {frames_done} frames (episodes in progress restart)")
+
+    def save() -> None:
+        _save_atomic(
+            {
+                "network": network.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "schedule": schedule.state_dict(),
+                "rng": _rng_state(),
+                "frames": frames_done,
+                "history": history,
+            },
+            checkpoint,
+        )
+
+    # ---- training ----------------------------------------------------------------------------
+    collector = Collector(
+        env, actor, frames_per_batch=batch, total_frames=max(total_frames - frames_done, batch)
+    )
+    recent: deque[float] = deque(maxlen=20)
+    losses: dict[str, float] = {}
+    start, frames_at_start = time.perf_counter(), frames_done
+    bar = tqdm(
+        total=total_frames, initial=frames_done, desc=f"PAAC {game}", unit="frame", unit_scale=True
+    )
+    try:
+        for update, data in enumerate(collector, start=1):
+            if frames_done >= total_frames:
+                break
+            data = n_step_targets(data, network, gamma)
+            network.sequence = True
+            try:
+                loss_td = loss_fn(data)
+            finally:
+                network.sequence = False
+            loss = loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(network.parameters(), max_grad_norm)
+            optimizer.step()
+            schedule.step()
+            frames_done += data.numel()
+            ended = data["next", "done"].squeeze(-1)
+            recent.extend(data["next", "episode_reward"][ended].flatten().tolist())
+            losses = {k: float(v.detach()) for k, v in loss_td.items() if k.startswith("loss_")}
+            if not all(np.isfinite(v) for v in losses.values()):
+                raise FloatingPointError(f"non-finite loss at {frames_done} frames: {losses}")
+            fps = (frames_done - frames_at_start) / (time.perf_counter() - start)
+            row = {
+                "frames": frames_done,
+                "train/fps": fps,
+                "train/grad_norm": float(grad_norm),
+                **{f"train/{k}": v for k, v in losses.items()},
+            }
+            if recent:
+                row["train/score"] = float(np.mean(recent))
+            history.append(row)
+            if log is not None:
+                for key, value in row.items():
+                    if key != "frames":
+                        log.log_scalar(key, value, step=frames_done)
+            bar.update(data.numel())
+            bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
+            if update % checkpoint_every == 0:
+                save()
+    finally:
+        bar.close()
+        collector.shutdown()
+    save()
+
+    # ---- evaluation --------------------------------------------------------------------------
+    eval_env = _env(network, num_envs=1, mode="single", train=False, **env_kwargs)
+    eval_env.set_seed(seed + 1)
+    scores = play(network, eval_env, eval_plays, eval_max_steps)
+    eval_env.close()
+    _save_atomic(network, out_dir / "network.pt")
+    save_score_curve(
+        history, out_dir / "training_curve.png", title=f"{game}, {'FDR+EDR' if edr else 'FDR'}"
+    )
+    scored = [row for row in history if "train/score" in row]
+    return {
+        "train/frames": frames_done,
+        "train/fps": history[-1]["train/fps"] if history else float("nan"),
+        "train/score_first": scored[0]["train/score"] if scored else None,
+        "train/score_last": scored[-1]["train/score"] if scored else None,
+        **{f"train/{k}": v for k, v in losses.items()},
+        "eval/plays": len(scores),
+        "eval/min": float(np.min(scores)),
+        "eval/max": float(np.max(scores)),
+        "eval/mean": float(np.mean(scores)),
+        "eval/scores": scores,
+        "curve": [(row["frames"], row["train/score"]) for row in scored],
+    }
