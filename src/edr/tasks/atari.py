@@ -32,8 +32,8 @@ from tqdm import tqdm
 from edr.representations import EDR
 from edr.rl.envs import Preset, make_atari_env
 from edr.rl.paac import Core, PAACNetwork, paac_module, recurrent_primer
+from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, save_atomic, save_checkpoint
 from edr.tasks.plots import save_score_curve
-from edr.tasks.recognition import CHECKPOINT, _rng_state, _save_atomic, _set_rng_state
 
 
 def _env(network: PAACNetwork | None, **kwargs: Any) -> TransformedEnv:
@@ -154,27 +154,13 @@ def train_paac(
     log = get_logger(logger, logger_name=str(out_dir), experiment_name="logs") if logger else None
     frames_done, history = 0, []
     checkpoint = out_dir / CHECKPOINT
+    parts = {"network": network, "optimizer": optimizer, "schedule": schedule}
     if resume and checkpoint.is_file():
-        state = torch.load(checkpoint, weights_only=False)
-        network.load_state_dict(state["network"])
-        optimizer.load_state_dict(state["optimizer"])
-        schedule.load_state_dict(state["schedule"])
-        _set_rng_state(state["rng"])
+        state = load_checkpoint(checkpoint, parts)  # episodes in progress restart
         frames_done, history = state["frames"], state["history"]
-        print(f"resuming {checkpoint} at {frames_done} frames (episodes in progress restart)")
 
     def save() -> None:
-        _save_atomic(
-            {
-                "network": network.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "schedule": schedule.state_dict(),
-                "rng": _rng_state(),
-                "frames": frames_done,
-                "history": history,
-            },
-            checkpoint,
-        )
+        save_checkpoint(checkpoint, parts, frames=frames_done, history=history)
 
     # ---- training ----------------------------------------------------------------------------
     collector = Collector(
@@ -236,7 +222,7 @@ def train_paac(
     eval_env.set_seed(seed + 1)
     scores = play(network, eval_env, eval_plays, eval_max_steps)
     eval_env.close()
-    _save_atomic(network, out_dir / "network.pt")
+    save_atomic(network, out_dir / "network.pt")
     save_score_curve(
         history, out_dir / "training_curve.png", title=f"{game}, {'FDR+EDR' if edr else 'FDR'}"
     )

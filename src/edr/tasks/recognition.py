@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -26,9 +24,9 @@ from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSo
 from edr.data.datasets import VideoSet
 from edr.models import RecognitionModel, activation_sparsity
 from edr.representations import Representation
+from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, save_atomic, save_checkpoint
 from edr.tasks.plots import save_confusion, save_learning_curve
 
-CHECKPOINT = "checkpoint.pt"
 MODEL = "model.pt"  # the trained RecognitionModel, whole (torch.save), for later tasks
 
 
@@ -46,35 +44,6 @@ def dataset_root(
     if not root.exists():
         print(f"no data.root given: generating a synthetic data set in {root}")
     return synthetic(root)
-
-
-def _save_atomic(payload: object, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")
-    os.close(fd)
-    try:
-        torch.save(payload, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _rng_state() -> dict[str, Any]:
-    import random
-
-    return {
-        "torch": torch.get_rng_state(),
-        "numpy": np.random.get_state(),
-        "python": random.getstate(),
-    }
-
-
-def _set_rng_state(state: dict[str, Any]) -> None:
-    import random
-
-    torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
-    random.setstate(state["python"])
 
 
 @torch.no_grad()
@@ -180,14 +149,10 @@ def train_recognition(
     history: list[dict[str, float]] = []
     start_epoch = 0
     checkpoint = out_dir / CHECKPOINT
+    parts = {"model": model, "optimizer": opt, "scheduler": scheduler}
     if resume and checkpoint.is_file():
-        state = torch.load(checkpoint, weights_only=False)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        _set_rng_state(state["rng"])
+        state = load_checkpoint(checkpoint, parts)
         history, start_epoch = state["history"], state["epoch"]
-        print(f"resuming {checkpoint} after epoch {start_epoch}")
     loss_fn = nn.CrossEntropyLoss()
 
     # ---- training ----------------------------------------------------------------------------
@@ -227,17 +192,7 @@ def train_recognition(
             for key, value in row.items():
                 if key != "epoch":
                     log.log_scalar(key, value, step=epoch + 1)
-        _save_atomic(
-            {
-                "model": model.state_dict(),
-                "optimizer": opt.state_dict(),
-                "scheduler": scheduler.state_dict(),
-                "rng": _rng_state(),
-                "history": history,
-                "epoch": epoch + 1,
-            },
-            checkpoint,
-        )
+        save_checkpoint(checkpoint, parts, history=history, epoch=epoch + 1)
 
     # ---- final evaluation --------------------------------------------------------------------
     predicted, true = evaluate(model, test_set, dev)
@@ -246,7 +201,7 @@ def train_recognition(
     probe = torch.stack([train_set[i][0] for i in range(min(4, len(train_set)))]).to(dev)
     model.eval()
     sparsity = activation_sparsity(model, probe)
-    _save_atomic(model.cpu(), out_dir / MODEL)
+    save_atomic(model.cpu(), out_dir / MODEL)
     save_learning_curve(history, out_dir / "learning_curve.png")
     save_confusion(matrix, classes, out_dir / "confusion.png")
     metrics: dict[str, Any] = {
