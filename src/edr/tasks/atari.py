@@ -36,11 +36,11 @@ from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, save_atomic, save
 from edr.tasks.plots import save_score_curve
 
 
-def _env(network: PAACNetwork | None, **kwargs: Any) -> TransformedEnv:
+def _env(network: PAACNetwork, **kwargs: Any) -> TransformedEnv:
+    """An Atari env that also tracks episode starts and primes ``network``'s recurrent state."""
     env = make_atari_env(**kwargs)
     env.append_transform(InitTracker())
-    if network is not None:
-        env.append_transform(recurrent_primer(network))
+    env.append_transform(recurrent_primer(network))
     return env
 
 

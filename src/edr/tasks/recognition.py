@@ -101,13 +101,9 @@ def train_recognition(
 ) -> dict[str, Any]:
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns metrics."""
     # ---- data --------------------------------------------------------------------------------
-    dev = torch.device(
-        "cuda"
-        if device == "auto" and torch.cuda.is_available()
-        else "cpu"
-        if device == "auto"
-        else device
-    )
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    dev = torch.device(device)
     root = dataset_root(data_root, synthetic, cache_dir)
     train_videos, test_videos = videos(root, train=True), videos(root, train=False)
     classes = train_videos.classes
