@@ -133,52 +133,74 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
     ]
 
 
-def atari_throughput(game: str, num_envs: int, steps: int, repeats: int, warmup: int) -> list[Row]:
+@dataclass
+class AtariThroughput:
+    """``edr-bench --atari``: the two configs' rows, and EDR's cost per pair of rollouts."""
+
+    rows: list[Row]  # FDR, then FDR + EDR; median over the timed rollouts
+    main_cpu_ms: list[float]  # per row: the main process's CPU ms per agent step (median)
+    costs: list[float]  # per pair of rollouts: 1 - (FDR+EDR steps/s) / (FDR steps/s), in %
+
+    @property
+    def cost(self) -> float:
+        """EDR's cost in %: the median over pairs, which load drifts shared by a pair cancel."""
+        return statistics.median(self.costs)
+
+
+def atari_throughput(
+    game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int
+) -> AtariThroughput:
     """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
 
-    Both use the paper's preset and RGB frames stacked 4 times; the EDR run adds EDR on gray
-    (Appendix C's 5 channels per frame). Random actions; ``fps`` counts env steps of all envs.
-    The two envs live side by side and take turns, so that load drifts hit both alike.
+    Both use the paper's preset and RGB frames stacked ``frame_stack`` times; the EDR run adds
+    EDR on gray (Appendix C's 5 channels per frame). Random actions; ``fps`` counts env steps of
+    all envs. The two envs live side by side and take turns (in alternating order), so that load
+    drifts hit both alike; each plays on from where its last rollout stopped, as in training.
     """
     from edr.rl.envs import make_atari_env  # ale-py and torchrl load only for this mode
 
-    def play(env: Any) -> None:  # as a collector steps: act, step, reset what ended; keep nothing
-        td = env.reset()
+    configs = {"FDR RGB": None, "FDR RGB + EDR gray": EDR(color="gray")}
+    envs = [
+        make_atari_env(game, num_envs=num_envs, edr=edr, frame_stack=frame_stack)
+        for edr in configs.values()
+    ]
+    data: list[Any] = []  # each env's latest tensordict: the streams go on across rollouts
+
+    def play(j: int) -> None:  # as a collector steps: act, step, reset what ended; keep nothing
+        env, td = envs[j], data[j]
         for _ in range(steps):
             _, td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))
+        data[j] = td
 
-    configs = {"FDR RGB, 4 frames": None, "FDR RGB + EDR gray, 4 frames": EDR(color="gray")}
-    envs = {
-        name: make_atari_env(game, num_envs=num_envs, mode="parallel", edr=edr, frame_stack=4)
-        for name, edr in configs.items()
-    }
-    times: dict[str, list[float]] = {name: [] for name in envs}
+    wall: list[list[float]] = [[] for _ in envs]
+    cpu: list[list[float]] = [[] for _ in envs]
     try:
-        for env in envs.values():
+        for j, env in enumerate(envs):
             env.set_seed(0)
+            data.append(env.reset())
             for _ in range(warmup):
-                play(env)
-        for _ in tqdm(range(repeats), desc="atari rollouts", unit="pair"):
-            for name, env in envs.items():
-                start = time.perf_counter()
-                play(env)
-                times[name].append(time.perf_counter() - start)
+                play(j)
+        for i in tqdm(range(repeats), desc="atari rollouts", unit="pair"):
+            for j in (0, 1) if i % 2 == 0 else (1, 0):
+                start, start_cpu = time.perf_counter(), time.process_time()
+                play(j)
+                wall[j].append(time.perf_counter() - start)
+                cpu[j].append(time.process_time() - start_cpu)
     finally:
-        for env in envs.values():
+        for env in envs:
             env.close()
     implementation = f"torchrl ParallelEnv, {num_envs} envs, paac preset"
     frames = steps * num_envs
-    return [
-        Row(
-            f"{game}: {name}",
-            implementation,
-            frames,
-            "84x84",
-            statistics.median(t),
-            frames / statistics.median(t),
-        )
-        for name, t in times.items()
-    ]
+    rows = [
+        Row(f"{game}: {name}, {frame_stack} frames", implementation, frames, "84x84",
+            statistics.median(t), frames / statistics.median(t))
+        for name, t in zip(configs, wall, strict=True)
+    ]  # fmt: skip
+    return AtariThroughput(
+        rows=rows,
+        main_cpu_ms=[1e3 * statistics.median(c) / steps for c in cpu],
+        costs=[100 * (1 - fdr / edr) for fdr, edr in zip(*wall, strict=True)],
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -206,6 +228,9 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="leave glibc's allocator as it is (default: keep freed memory, see edr.allocator)",
     )
+    parser.add_argument(
+        "--frame-stack", type=int, default=4, help="agent steps per observation (--atari)"
+    )
     parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
     parser.add_argument("--table", type=Path, default=Path("paper/table2_speed.md"))
     args = parser.parse_args(argv)
@@ -215,19 +240,25 @@ def main(argv: list[str] | None = None) -> None:
         allocator = "system default (mallopt unavailable)"
     if args.threads:
         torch.set_num_threads(args.threads)
-        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
 
     if args.atari:
-        rows = atari_throughput(args.game, args.atari, args.steps, repeats, args.warmup)
+        result = atari_throughput(
+            args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack
+        )
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
         machine = machine_info()
-        record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp, "repeats": repeats,
-                  "warmup": args.warmup, "machine": machine, "rows": [asdict(r) for r in rows]}  # fmt: skip
+        record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
+                  "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
+                  "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
         path = write_json_atomic(args.out_dir / f"atari_{machine['hostname']}_{stamp}.json", record)
-        for r in rows:
-            print(f"{r.name:45s} {r.fps:10.1f} env steps/s  ({4 * r.fps:.0f} emulator frames/s)")
+        for r, cpu in zip(result.rows, result.main_cpu_ms, strict=True):
+            print(
+                f"{r.name:40s} {r.fps:8.1f} env steps/s ({4 * r.fps:.0f} emulator frames/s), "
+                f"main process {cpu:.2f} CPU ms per agent step"
+            )
         print(
-            f"EDR costs {100 * (1 - rows[1].fps / rows[0].fps):.1f} % of throughput\nrecord: {path}"
+            f"EDR costs {result.cost:.1f} % of throughput (median of {repeats} paired rollouts; "
+            f"pairs from {min(result.costs):.1f} to {max(result.costs):.1f} %)\nrecord: {path}"
         )
         return
 

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-import numba
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
@@ -39,7 +38,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     seed_everything(cfg.seed)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-        numba.set_num_threads(min(cfg.threads, numba.config.NUMBA_NUM_THREADS))
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(cfg, resolve=True)

@@ -259,8 +259,16 @@ class EDR(Representation):
         k_out = 1 if self.combine == "sum" else k
         out = torch.empty((b, t, c * k_out * 2, h, w), dtype=torch.float32)
         alpha, beta, on_th, off_th = self._kernel_params()
-        kernels.edr_kernel(
-            frames.contiguous().view(b, t, c_in, h * w).numpy(),
+        pixels_last = frames.permute(0, 1, 3, 4, 2)  # (B, T, H, W, C), a view
+        interleaved = c_in > 1 and pixels_last.is_contiguous()  # as env pixels (H, W, C) come
+        if interleaved:
+            x = pixels_last.view(b, t, 1, h * w * c_in)
+        else:
+            x = frames.contiguous().view(b, t, c_in, h * w)
+        kernels.launch(
+            kernels.edr_kernel,
+            x.numpy(),
+            c_in if interleaved else 0,
             self.color == "gray" and c_in == 3,
             np.float32(self.eps),
             alpha,

@@ -60,7 +60,8 @@ class GrayDiff(Representation):
         if self.fast and fusable and not (torch.is_grad_enabled() and frames.requires_grad):
             b, t, c, h, w = frames.shape
             out = torch.empty((b, t - 1, 1, h, w))
-            kernels.gray_diff_kernel(
+            kernels.launch(
+                kernels.gray_diff_kernel,
                 frames.contiguous().view(b, t, c, h * w).numpy(),
                 np.float32(self.scale),
                 out.view(b, t - 1, 1, h * w).numpy(),

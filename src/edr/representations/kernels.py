@@ -5,11 +5,17 @@ Both kernels split the pixels of each clip into chunks that fit in L1/L2 and giv
 chunk stays in cache for the whole clip. They compute the same float32 expressions, in the same
 order, as the torch code in ``edr.py`` and ``frames.py``, so the two paths agree to rounding.
 Compiled code is cached on disk (``cache=True``): only the first call on a machine compiles.
+Call them through ``launch``, which runs them on as many threads as torch uses.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
+import numba
 import numpy as np
+import torch
 from numba import njit, prange
 
 from edr.representations.base import GRAY_WEIGHTS
@@ -21,10 +27,43 @@ ZERO = np.float32(0.0)
 ONE = np.float32(1.0)
 
 
+def launch(kernel: Callable[..., None], *args: Any) -> None:
+    """``kernel(*args)`` on ``torch.get_num_threads()`` numba threads, leaving torch's count as is.
+
+    numba's OpenMP layer shares torch's libgomp and sets the pool to numba's own thread count on
+    every launch, which would silently undo ``torch.set_num_threads`` (a ParallelEnv sets the main
+    process to one thread so that its workers keep the cores; numba would make it two again).
+    """
+    threads = torch.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        kernel(*args)
+    finally:
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
+
+
 @njit(inline="always")
-def _load_intensity(x, b, t, c, lo, n, gray, eps, dst):
-    """dst[:n] = intensity of channel c (or luma, when ``gray``) of x[b, t] at pixels lo.. + eps."""
-    if gray:
+def _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, dst):
+    """dst[:n] = intensity of channel c (or luma, when ``gray``) of x[b, t] at pixels lo.. + eps.
+
+    x is (B, T, C, P) planar, or (B, T, 1, P * C) with ``interleaved`` = C channels per pixel.
+    """
+    if interleaved:
+        px = x[
+            b, t, 0, interleaved * lo : interleaved * (lo + n)
+        ]  # flat: numba's 2-D indexing is slow
+        if gray:
+            for i in range(n):
+                dst[i] = (
+                    W_R * np.float32(px[3 * i])
+                    + W_G * np.float32(px[3 * i + 1])
+                    + W_B * np.float32(px[3 * i + 2])
+                ) + eps
+        else:
+            for i in range(n):
+                dst[i] = np.float32(px[interleaved * i + c]) + eps
+    elif gray:
         xr = x[b, t, 0, lo : lo + n]
         xg = x[b, t, 1, lo : lo + n]
         xb = x[b, t, 2, lo : lo + n]
@@ -46,10 +85,26 @@ def _chunk(job, n_chunks, n_pix):
 
 
 @njit(parallel=True, cache=True)
-def edr_kernel(x, gray, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k, ema, restart, out):
+def edr_kernel(
+    x,
+    interleaved,
+    gray,
+    eps,
+    alpha,
+    beta,
+    on_th,
+    off_th,
+    log_form,
+    hard,
+    sum_k,
+    ema,
+    restart,
+    out,
+):
     """Run EDR over the frames of ``x``, carrying ``ema`` in place.
 
-    x       (B, T, C_in, P) uint8 or float32, intensities without eps
+    x       (B, T, C_in, P), or (B, T, 1, P * C_in) with ``interleaved`` = C_in (0: planar);
+            uint8 or float32 intensities without eps
     gray    convert 3 input channels to one luma channel
     alpha, beta  (K,) float32
     on_th, off_th  (K_out,) thresholds already in the domain of ``log_form``
@@ -57,7 +112,8 @@ def edr_kernel(x, gray, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k, 
     restart (B,) bool: rows whose EMA restarts from the first frame of ``x``
     out     (B, T, C, K_out, 2, P) float32, K_out = 1 if ``sum_k`` else K; last-but-one axis ON, OFF
     """
-    n_batch, n_frames, _, n_pix = x.shape
+    n_batch, n_frames = x.shape[0], x.shape[1]
+    n_pix = x.shape[3] // interleaved if interleaved else x.shape[3]
     n_chan, n_k = ema.shape[1], ema.shape[2]
     n_chunks = (n_pix + CHUNK - 1) // CHUNK
     for job in prange(n_batch * n_chunks):
@@ -66,7 +122,7 @@ def edr_kernel(x, gray, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k, 
         acc = np.empty(n, np.float32)
         for t in range(n_frames):
             for c in range(n_chan):
-                _load_intensity(x, b, t, c, lo, n, gray, eps, intensity)
+                _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, intensity)
                 if t == 0 and restart[b]:
                     for k in range(n_k):
                         ema[b, c, k, lo : lo + n] = intensity
@@ -138,9 +194,9 @@ def gray_diff_kernel(x, scale, out):
         b, lo, n = _chunk(job, n_chunks, n_pix)
         prev = np.empty(n, np.float32)
         cur = np.empty(n, np.float32)
-        _load_intensity(x, b, 0, 0, lo, n, gray, ZERO, prev)
+        _load_intensity(x, b, 0, 0, lo, n, gray, 0, ZERO, prev)
         for t in range(1, n_frames):
-            _load_intensity(x, b, t, 0, lo, n, gray, ZERO, cur)
+            _load_intensity(x, b, t, 0, lo, n, gray, 0, ZERO, cur)
             o = out[b, t - 1, 0, lo : lo + n]
             for i in range(n):
                 o[i] = scale * (cur[i] - prev[i])

@@ -19,8 +19,6 @@ from typing import Literal
 import ale_py
 import gymnasium as gym
 from torchrl.envs import (
-    CatFrames,
-    CatTensors,
     Compose,
     EnvBase,
     GrayScale,
@@ -35,7 +33,7 @@ from torchrl.envs import (
 )
 
 from edr.representations import EDR
-from edr.rl.transform import EDRTransform
+from edr.rl.transform import EDRTransform, FrameStack
 
 gym.register_envs(ale_py)
 
@@ -99,7 +97,5 @@ def make_atari_env(
         transforms.append(ToTensorImage(in_keys=["pixels"], out_keys=["fdr"]))
         if fdr == "gray":
             transforms.append(GrayScale(in_keys=["fdr"]))
-    transforms.append(CatTensors(in_keys=parts, out_key="observation", dim=-3, del_keys=False))
-    if frame_stack > 1:
-        transforms.append(CatFrames(N=frame_stack, dim=-3, in_keys=["observation"]))
+    transforms.append(FrameStack(frame_stack, in_keys=parts, out_key="observation"))
     return TransformedEnv(base, Compose(*transforms))

@@ -1,13 +1,16 @@
-"""EDR as a torchrl ``Transform``: computed on the fly as the agent plays, one EMA per env.
+"""Streaming torchrl transforms for the Atari observation: EDR events and a frame stack.
 
-The EMA carries across agent steps (the authors' code restarted it at every step) and restarts
-exactly where an env resets: on a partial reset only the envs whose ``_reset`` flag is set
-restart from their new first frame; the others keep their state and their last output.
+Both carry one state per env across agent steps and restart it exactly where an env resets: on
+a partial reset only the envs whose ``_reset`` flag is set restart from their new first input;
+the others keep their state and their last output. EDR's EMA therefore runs across steps (the
+authors' code restarted it at every step).
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -18,7 +21,74 @@ from torchrl.envs.transforms.utils import _get_reset
 from edr.representations import EDR, EDRState
 
 
-class EDRTransform(Transform):
+class _PerEnvStream(Transform):
+    """Image keys (..., 3 image dims) -> one image under ``out_keys[0]``, with a state per env.
+
+    Subclasses read their input (``_input``) and say how envs start (``_restart``) and how every
+    env moves on by one step (``_advance``), on batches flattened to N = all batch dims.
+    """
+
+    def __init__(self, in_keys: Sequence[str], out_keys: Sequence[str]) -> None:
+        super().__init__(in_keys=list(in_keys), out_keys=list(out_keys))
+        if len(self.out_keys) != 1:
+            raise ValueError(f"{type(self).__name__} writes one out_key, got {self.out_keys}")
+        self._last: torch.Tensor | None = None  # (N, ...) the latest output
+
+    @property
+    def reset_key(self) -> str:
+        """The env's partial-reset flag (``_reset`` for a plain or batched env)."""
+        return self.parent.reset_keys[0] if self.parent is not None else "_reset"
+
+    def _input(self, tensordict: TensorDictBase) -> Any:
+        """What ``_restart`` and ``_advance`` read, from the tensordict; rows flattened to N."""
+        raise NotImplementedError
+
+    def _restart(self, x: Any, rows: torch.Tensor | None) -> torch.Tensor:
+        """Start the envs ``rows`` (all when None) from input ``x``; their first outputs."""
+        raise NotImplementedError
+
+    def _advance(self, x: Any) -> torch.Tensor:
+        """Every env one step on with input ``x``; the new outputs (N, ...)."""
+        raise NotImplementedError
+
+    def _fresh(self, tensordict: TensorDictBase) -> bool:
+        """Whether there is no state yet for this tensordict's envs."""
+        return self._last is None or self._last.shape[0] != tensordict.batch_size.numel()
+
+    def _emit(self, tensordict: TensorDictBase, out: torch.Tensor) -> TensorDictBase:
+        tensordict.set(self.out_keys[0], out.reshape(*tensordict.batch_size, *out.shape[1:]))
+        return tensordict
+
+    @torch.no_grad()
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        x = self._input(next_tensordict)
+        fresh = self._fresh(next_tensordict)
+        self._last = self._restart(x, None) if fresh else self._advance(x)
+        return self._emit(next_tensordict, self._last)
+
+    @torch.no_grad()
+    def _reset(
+        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+    ) -> TensorDictBase:
+        x = self._input(tensordict_reset)
+        mask = _get_reset(self.reset_key, tensordict).reshape(-1)
+        if self._fresh(tensordict_reset) or mask.all():
+            self._last = self._restart(x, None)
+        elif mask.any():
+            rows = mask.nonzero().squeeze(1)
+            last = self._last.clone()  # earlier outputs may live on in collected data
+            last[rows] = self._restart(x, rows)
+            self._last = last
+        return self._emit(tensordict_reset, self._last)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        raise NotImplementedError(
+            f"{type(self).__name__} is stateful and streams through an env's steps and resets; "
+            "for stored clips use edr.representations.EDR (or ClipTransform) on (B, T, C, H, W)"
+        )
+
+
+class EDRTransform(_PerEnvStream):
     """Pixels (..., H, W, C) uint8 (``channels_last``) or (..., C, H, W) -> EDR events
     (..., C' * 2 * K', H, W) float32 under ``out_keys``; the pixels stay as they are."""
 
@@ -29,52 +99,31 @@ class EDRTransform(Transform):
         out_keys: Sequence[str] = ("edr",),
         channels_last: bool = True,
     ) -> None:
-        super().__init__(in_keys=list(in_keys), out_keys=list(out_keys))
-        if len(self.in_keys) != 1 or len(self.out_keys) != 1:
-            raise ValueError("EDRTransform takes one in_key and one out_key")
+        super().__init__(in_keys, out_keys)
+        if len(self.in_keys) != 1:
+            raise ValueError(f"EDRTransform reads one in_key, got {self.in_keys}")
         self.edr = edr if edr is not None else EDR(color="gray")
         self.channels_last = channels_last
-        self._state: EDRState | None = None  # ema (N, C', K, H, W), N = all batch dims flattened
-        self._last: torch.Tensor | None = None  # (N, C_out, H, W), the latest output
+        self._state: EDRState | None = None  # ema (N, C', K, H, W)
 
-    @property
-    def reset_key(self) -> str:
-        """The env's partial-reset flag (``_reset`` for a plain or batched env)."""
-        return self.parent.reset_keys[0] if self.parent is not None else "_reset"
-
-    def _frames(self, tensordict: TensorDictBase) -> torch.Tensor:
-        """(..., H, W, C) or (..., C, H, W) -> (N, C, H, W)."""
+    def _input(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """-> frames (N, C, H, W), a view of the pixels."""
         pixels = tensordict.get(self.in_keys[0])
         if self.channels_last:
             pixels = pixels.movedim(-1, -3)
         return pixels.reshape(-1, *pixels.shape[-3:])
 
-    def _emit(self, tensordict: TensorDictBase, events: torch.Tensor) -> TensorDictBase:
-        batch = tensordict.get(self.in_keys[0]).shape[:-3]
-        tensordict.set(self.out_keys[0], events.reshape(*batch, *events.shape[1:]))
-        return tensordict
+    def _restart(self, x: torch.Tensor, rows: torch.Tensor | None) -> torch.Tensor:
+        if rows is None or self._state is None:
+            events, self._state = self.edr.step(x)
+            return events
+        events, state = self.edr.step(x[rows])
+        self._state.ema[rows] = state.ema
+        return events
 
-    @torch.no_grad()
-    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        events, self._state = self.edr.step(self._frames(next_tensordict), self._state)
-        self._last = events
-        return self._emit(next_tensordict, events)
-
-    @torch.no_grad()
-    def _reset(
-        self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
-    ) -> TensorDictBase:
-        frames = self._frames(tensordict_reset)
-        mask = _get_reset(self.reset_key, tensordict).reshape(-1)
-        if self._state is None or mask.all() or self._state.ema.shape[0] != frames.shape[0]:
-            self._last, self._state = self.edr.step(frames)
-        elif mask.any():
-            rows = mask.nonzero().squeeze(1)
-            fresh, state = self.edr.step(frames[rows])
-            self._state.ema[rows] = state.ema
-            self._last = self._last.clone()  # earlier outputs may live on in collected data
-            self._last[rows] = fresh
-        return self._emit(tensordict_reset, self._last)
+    def _advance(self, x: torch.Tensor) -> torch.Tensor:
+        events, self._state = self.edr.step(x, self._state)
+        return events
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         pixels = observation_spec[self.in_keys[0]]
@@ -87,8 +136,48 @@ class EDRTransform(Transform):
         )
         return observation_spec
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        raise NotImplementedError(
-            "EDRTransform is stateful and streams through an env's steps and resets; for stored "
-            "clips use edr.representations.EDR (or ClipTransform) on (B, T, C, H, W) frames"
+
+class FrameStack(_PerEnvStream):
+    """The images under ``in_keys`` (each (..., C_i, H, W)) concatenated on the channel axis and
+    stacked over the last ``n`` steps, oldest first -> ``out_key`` (..., n * sum(C_i), H, W).
+
+    An env that (re)starts repeats its first frame ``n`` times (as ``CatFrames(padding="same")``).
+    Each step writes one new stack in one pass, where torchrl's ``CatTensors`` then ``CatFrames``
+    take five (cat; roll, copy, write, clone) and three allocations. The inputs stay as they are.
+    """
+
+    def __init__(
+        self, n: int, in_keys: Sequence[str] = ("observation",), out_key: str = "observation"
+    ) -> None:
+        super().__init__(in_keys, [out_key])
+        if n < 1:
+            raise ValueError(f"FrameStack needs n >= 1, got {n}")
+        self.n = n
+
+    def _input(self, tensordict: TensorDictBase) -> list[torch.Tensor]:
+        """-> one (N, C_i, H, W) tensor per in_key."""
+        parts = (tensordict.get(key) for key in self.in_keys)
+        return [p.reshape(-1, *p.shape[-3:]) for p in parts]
+
+    def _restart(self, x: list[torch.Tensor], rows: torch.Tensor | None) -> torch.Tensor:
+        frame = torch.cat(x if rows is None else [p[rows] for p in x], dim=1)
+        return frame.repeat(1, self.n, 1, 1)
+
+    def _advance(self, x: list[torch.Tensor]) -> torch.Tensor:
+        stack = torch.empty_like(self._last)  # a new tensor: the last one lives on in rollouts
+        start = stack.shape[1] - sum(p.shape[1] for p in x)  # where the newest frame begins
+        stack[:, :start] = self._last[:, stack.shape[1] - start :]
+        for part in x:
+            stack[:, start : start + part.shape[1]] = part
+            start += part.shape[1]
+        return stack
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        specs = [observation_spec[key] for key in self.in_keys]
+        first = specs[0]
+        channels = self.n * sum(spec.shape[-3] for spec in specs)
+        dtype = functools.reduce(torch.promote_types, (spec.dtype for spec in specs))
+        observation_spec[self.out_keys[0]] = Unbounded(
+            shape=(*first.shape[:-3], channels, *first.shape[-2:]), dtype=dtype, device=first.device
         )
+        return observation_spec
