@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -69,6 +70,26 @@ def test_unknown_representation_is_a_clear_error(tmp_path) -> None:
     result = _cli("edr-run", "representation=nope", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     assert result.returncode != 0
     assert "nope" in result.stderr and "representation" in result.stderr
+
+
+def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
+    bench.main(
+        ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0", "--frame-stack", "2",
+         "--out-dir", str(tmp_path), "--atari-table", str(tmp_path / "atari.md")]
+    )  # fmt: skip
+    (record_path,) = tmp_path.glob("atari_*.json")
+    record = json.loads(record_path.read_text())
+    assert [row["name"] for row in record["rows"]] == [
+        "Pong: FDR RGB, 2 frames",
+        "Pong: FDR RGB + EDR gray, 2 frames",
+    ]
+    assert all(row["fps"] > 0 and row["frames"] == 6 for row in record["rows"])
+    assert len(record["costs"]) == 2 and record["cost"] == statistics.median(record["costs"])
+    assert all(ms > 0 for ms in record["main_cpu_ms"])
+    assert "EDR costs" in capsys.readouterr().out
+    row = (tmp_path / "atari.md").read_text().splitlines()[-1]
+    assert row.startswith("| Pong | 2 | 2 |") and f"{record['cost']:.1f} %" in row
+    assert record_path.name in row
 
 
 def test_bench_writes_record_and_table(tmp_path) -> None:

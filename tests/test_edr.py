@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 import torch
@@ -115,6 +116,36 @@ def test_step_equals_forward(fused: bool) -> None:
             out_t, state = edr.step(clip[:, t], state)
             outs.append(out_t)
     torch.testing.assert_close(torch.stack(outs, 1), whole)
+
+
+@pytest.mark.parametrize("color", ["gray", "keep"])
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.float32])
+def test_channels_last_frames_give_the_same_events(color: str, dtype: torch.dtype) -> None:
+    clip = _random_clip(dtype, seed=4, shape=(2, 5, 3, 6, 7))
+    channels_last = clip.permute(0, 1, 3, 4, 2).contiguous().permute(0, 1, 4, 2, 3)
+    assert not channels_last.is_contiguous()  # the kernel reads it in place, interleaved
+    edr = EDR(half_lives=(1.0, 3.8), color=color)
+    with torch.no_grad():
+        torch.testing.assert_close(edr(channels_last), edr(clip))
+        state, outs = None, []
+        for t in range(clip.shape[1]):  # as an env's (H, W, C) pixels come, one frame a step
+            out_t, state = edr.step(channels_last[:, t], state)
+            outs.append(out_t)
+    torch.testing.assert_close(
+        torch.stack(outs, 1), EDR(half_lives=(1.0, 3.8), color=color, fast=False)(clip)
+    )
+
+
+def test_kernels_run_on_torchs_thread_count_and_leave_it() -> None:
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        with torch.no_grad():
+            EDR(color="gray")(_random_clip(torch.uint8, shape=(2, 3, 3, 8, 8)))
+        assert torch.get_num_threads() == 1  # numba's OpenMP pool would otherwise reset it
+        assert numba.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
 
 
 @pytest.mark.parametrize("fused", [True, False])

@@ -39,7 +39,7 @@ from edr.representations import (
     decode_motion_vectors,
 )
 from edr.representations.mpeg_flow import encode_clip
-from edr.tables import write_speed_table
+from edr.tables import write_atari_cost_table, write_speed_table
 
 K3 = (1.0, 3.8, 8.0)
 
@@ -233,6 +233,9 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
     parser.add_argument("--table", type=Path, default=Path("paper/table2_speed.md"))
+    parser.add_argument(
+        "--atari-table", type=Path, default=Path("paper/atari_edr_cost.md"), help="(--atari)"
+    )
     args = parser.parse_args(argv)
     repeats = 2 if args.quick else args.repeats
     allocator = "glibc default" if args.system_malloc else "glibc, freed memory kept"
@@ -248,9 +251,11 @@ def main(argv: list[str] | None = None) -> None:
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
         machine = machine_info()
         record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
+                  "game": args.game, "num_envs": args.atari, "frame_stack": args.frame_stack,
                   "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
                   "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
         path = write_json_atomic(args.out_dir / f"atari_{machine['hostname']}_{stamp}.json", record)
+        table = write_atari_cost_table(args.out_dir, args.atari_table)
         for r, cpu in zip(result.rows, result.main_cpu_ms, strict=True):
             print(
                 f"{r.name:40s} {r.fps:8.1f} env steps/s ({4 * r.fps:.0f} emulator frames/s), "
@@ -258,7 +263,8 @@ def main(argv: list[str] | None = None) -> None:
             )
         print(
             f"EDR costs {result.cost:.1f} % of throughput (median of {repeats} paired rollouts; "
-            f"pairs from {min(result.costs):.1f} to {max(result.costs):.1f} %)\nrecord: {path}"
+            f"pairs from {min(result.costs):.1f} to {max(result.costs):.1f} %)\n"
+            f"record: {path}\ntable:  {table}"
         )
         return
 

@@ -93,6 +93,46 @@ def write_speed_table(record: dict[str, Any], path: Path, source: str = "") -> P
     return _write(speed_table(record, source), path)
 
 
+def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
+    """Markdown: one row per ``edr-bench --atari`` record, EDR's cost in env steps per second."""
+    paired = [(p, r) for p, r in records if "costs" in r]
+    lines = [
+        "# What EDR costs in the Atari loop: env steps per second with and without it",
+        "",
+        "`edr-bench --atari ENVS`: a torchrl ParallelEnv of ENVS games, paac preset, random",
+        "actions, played as a collector plays them; FDR RGB vs FDR RGB + EDR on gray (Appendix C's",
+        "5 channels per frame), both stacked over the frames given. The two envs take turns; the",
+        "cost is the median over pairs of rollouts of 1 - (FDR+EDR steps/s) / (FDR steps/s), with",
+        "the pairs' range. The goal is at most 5 %. Main CPU: CPU milliseconds the main process",
+        "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run).",
+        "",
+        "| Game | Envs | Frames stacked | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Machine | Measured, git | Record |",
+        "|---|---:|---:|---:|---:|---:|---|---|---|---|---|",
+    ]
+    for path, r in paired:
+        fdr, edr = r["rows"]
+        costs, m = r["costs"], r["machine"]
+        lines.append(
+            f"| {r['game']} | {r['num_envs']} | {r['frame_stack']} | {fdr['fps']:,.1f} | "
+            f"{edr['fps']:,.1f} | {r['cost']:.1f} % | {len(costs)}: {min(costs):.1f} to "
+            f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | "
+            f"{m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'} | "
+            f"{r['measured_at']}, `{r['git']}` | `{path.name}` |"
+        )
+    older = [p.name for p, r in records if "costs" not in r]
+    if older:
+        lines += ["", f"Older records, from before paired timing, not shown: {', '.join(older)}."]
+    return "\n".join([*lines, ""])
+
+
+def write_atari_cost_table(bench_dir: Path, path: Path) -> Path | None:
+    """The table of every ``atari_*.json`` record in ``bench_dir``, oldest first; None if none."""
+    found = sorted(bench_dir.glob("atari_*.json"), key=lambda p: p.stat().st_mtime)
+    if not found:
+        return None
+    return _write(atari_cost_table([(p, read_record(p)) for p in found]), path)
+
+
 def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) -> str:
     """Markdown: one row per (representation, backbone), accuracy averaged over seeds."""
     groups: dict[tuple[str, str, bool], list[tuple[Path, dict[str, Any]]]] = {}
@@ -176,6 +216,9 @@ def main(argv: list[str] | None = None) -> None:
         written.append(
             write_speed_table(read_record(speed), args.paper / "table2_speed.md", str(speed))
         )
+    atari = write_atari_cost_table(args.results / "bench", args.paper / "atari_edr_cost.md")
+    if atari is not None:
+        written.append(atari)
     kth_runs = task_records(args.results, "kth")
     if kth_runs:
         text = recognition_table(kth_runs, "Table 4: KTH, ours beside the paper's")

@@ -100,7 +100,7 @@ def train_paac(
     env_mode: str = "parallel",
     fdr: str = "rgb",
     edr: EDR | None = None,
-    frame_stack: int = 1,
+    frame_stack: int = 4,
     core: Core = "lstm",
     total_frames: int = 80_000_000,
     lr_decay_frames: int = 80_000_000,
