@@ -3,9 +3,11 @@
     edr-bench                       # generated 320x240 clip, all cores
     edr-bench --video clip.avi      # a real decoded video (resized to 320x240)
     edr-bench --threads 1 --quick   # one thread, fewer repeats
+    edr-bench --atari 16            # instead: Atari env steps/s with and without EDR
 
 Median throughput over ``--repeats`` timed calls after a warm-up call (which also compiles the
-numba kernels). Writes ``results/bench/speed_<host>_<time>.json`` and ``paper/table2_speed.md``.
+numba kernels). Writes ``results/bench/speed_<host>_<time>.json`` and ``paper/table2_speed.md``;
+with ``--atari``, ``results/bench/atari_<host>_<time>.json`` and ``paper/atari_edr_cost.md``.
 """
 
 from __future__ import annotations
