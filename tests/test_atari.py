@@ -42,6 +42,17 @@ def test_stepping_equals_replaying_the_rollout(core: str) -> None:
         torch.testing.assert_close(stepped[2][0][1:2], fresh)
 
 
+def test_float16_observations_go_through_the_network_in_float32() -> None:
+    torch.manual_seed(0)
+    net = PAACNetwork(5, 6, "lstm")
+    obs = torch.rand(2, 5, 84, 84).half()
+    h = c = torch.zeros(2, net.state_size)
+    first = torch.ones(2, 1, dtype=torch.bool)
+    logits, value, _, _ = net(obs, h, c, first)
+    assert logits.dtype == value.dtype == torch.float32
+    torch.testing.assert_close(logits, net(obs.float(), h, c, first)[0])
+
+
 def test_ft_lstm_recurrence_stays_within_channels() -> None:
     net = PAACNetwork(2, 4, "ftlstm")
     assert net.cell.recurrent.shape == (4, 32, 81, 81)  # (gate, channel, location, location)

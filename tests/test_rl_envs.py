@@ -110,6 +110,24 @@ def test_frame_stack_holds_the_last_frames_and_restarts_per_env() -> None:
         FrameStack(0)
 
 
+def test_float16_observation_is_the_float32_one_rounded() -> None:
+    observations = {}
+    for dtype in ("float32", "float16"):
+        env = make_atari_env(
+            "Pong", mode="single", edr=EDR(color="gray"), frame_stack=2, obs_dtype=dtype
+        )
+        check_env_specs(env)
+        env.set_seed(3)
+        torch.manual_seed(3)  # the same random actions
+        observations[dtype] = env.rollout(4)["next", "observation"]  # (4, 2 * 5, H, W)
+        assert env.observation_spec["observation"].dtype == getattr(torch, dtype)
+        env.close()
+    assert observations["float16"].dtype == torch.float16
+    torch.testing.assert_close(observations["float16"], observations["float32"].half())
+    with pytest.raises(ValueError, match="obs_dtype"):
+        make_atari_env("Pong", mode="single", obs_dtype="int8")
+
+
 def test_transform_is_not_for_stored_data() -> None:
     with pytest.raises(NotImplementedError, match="stateful"):
         EDRTransform()(

@@ -150,8 +150,9 @@ class AtariThroughput:
 
 
 def atari_throughput(
-    game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int
-) -> AtariThroughput:
+    game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int,
+    obs_dtype: str = "float32",
+) -> AtariThroughput:  # fmt: skip
     """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
 
     Both use the paper's preset and RGB frames stacked ``frame_stack`` times; the EDR run adds
@@ -163,7 +164,9 @@ def atari_throughput(
 
     configs = {"FDR RGB": None, "FDR RGB + EDR gray": EDR(color="gray")}
     envs = [
-        make_atari_env(game, num_envs=num_envs, edr=edr, frame_stack=frame_stack)
+        make_atari_env(
+            game, num_envs=num_envs, edr=edr, frame_stack=frame_stack, obs_dtype=obs_dtype
+        )
         for edr in configs.values()
     ]
     data: list[Any] = []  # each env's latest tensordict: the streams go on across rollouts
@@ -194,7 +197,7 @@ def atari_throughput(
     implementation = f"torchrl ParallelEnv, {num_envs} envs, paac preset"
     frames = steps * num_envs
     rows = [
-        Row(f"{game}: {name}, {frame_stack} frames", implementation, frames, "84x84",
+        Row(f"{game}: {name}, {frame_stack} frames, {obs_dtype}", implementation, frames, "84x84",
             statistics.median(t), frames / statistics.median(t))
         for name, t in zip(configs, wall, strict=True)
     ]  # fmt: skip
@@ -233,6 +236,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--frame-stack", type=int, default=4, help="agent steps per observation (--atari)"
     )
+    parser.add_argument(
+        "--obs-dtype", choices=["float32", "float16"], default="float32", help="(--atari)"
+    )
     parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
     parser.add_argument("--table", type=Path, default=Path("paper/table2_speed.md"))
     parser.add_argument(
@@ -248,12 +254,19 @@ def main(argv: list[str] | None = None) -> None:
 
     if args.atari:
         result = atari_throughput(
-            args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack
+            args.game,
+            args.atari,
+            args.steps,
+            repeats,
+            args.warmup,
+            args.frame_stack,
+            args.obs_dtype,
         )
         stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
         machine = machine_info()
         record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                   "game": args.game, "num_envs": args.atari, "frame_stack": args.frame_stack,
+                  "obs_dtype": args.obs_dtype,
                   "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
                   "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
         path = write_json_atomic(args.out_dir / f"atari_{machine['hostname']}_{stamp}.json", record)

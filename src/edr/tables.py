@@ -106,14 +106,15 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
         "the pairs' range. The goal is at most 5 %. Main CPU: CPU milliseconds the main process",
         "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run).",
         "",
-        "| Game | Envs | Frames stacked | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Machine | Measured, git | Record |",
-        "|---|---:|---:|---:|---:|---:|---|---|---|---|---|",
+        "| Game | Envs | Frames stacked | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Machine | Measured, git | Record |",
+        "|---|---:|---:|---|---:|---:|---:|---|---|---|---|---|",
     ]
     for path, r in paired:
         fdr, edr = r["rows"]
         costs, m = r["costs"], r["machine"]
         lines.append(
-            f"| {r['game']} | {r['num_envs']} | {r['frame_stack']} | {fdr['fps']:,.1f} | "
+            f"| {r['game']} | {r['num_envs']} | {r['frame_stack']} | "
+            f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "
             f"{edr['fps']:,.1f} | {r['cost']:.1f} % | {len(costs)}: {min(costs):.1f} to "
             f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | "
             f"{m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'} | "

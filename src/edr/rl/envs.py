@@ -6,7 +6,7 @@ Presets:
   clipped to their sign.
 - ``v5``: ALE v5's own defaults (frame skip 4, sticky actions 0.25), frames resized to 84x84.
 
-Observation ``observation`` (..., C, 84, 84) float32: FDR (RGB 3 or gray 1 channel, /255) and/or
+Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3 or gray 1 channel, /255) and/or
 EDR events computed on the fly (``EDRTransform``), stacked over ``frame_stack`` agent steps.
 The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 """
@@ -18,6 +18,7 @@ from typing import Literal
 
 import ale_py
 import gymnasium as gym
+import torch
 from torchrl.envs import (
     Compose,
     EnvBase,
@@ -71,6 +72,7 @@ def make_atari_env(
     fdr: Literal["rgb", "gray", "none"] = "rgb",
     edr: EDR | None = None,
     frame_stack: int = 1,
+    obs_dtype: Literal["float32", "float16"] = "float32",
 ) -> TransformedEnv:
     """A torchrl env of ``num_envs`` Atari games with the observation the config asks for."""
     if fdr == "none" and edr is None:
@@ -97,5 +99,8 @@ def make_atari_env(
         transforms.append(ToTensorImage(in_keys=["pixels"], out_keys=["fdr"]))
         if fdr == "gray":
             transforms.append(GrayScale(in_keys=["fdr"]))
-    transforms.append(FrameStack(frame_stack, in_keys=parts, out_key="observation"))
+    if obs_dtype not in ("float32", "float16"):
+        raise ValueError(f"obs_dtype must be float32 or float16, got {obs_dtype!r}")
+    stack = FrameStack(frame_stack, parts, "observation", dtype=getattr(torch, obs_dtype))
+    transforms.append(stack)
     return TransformedEnv(base, Compose(*transforms))

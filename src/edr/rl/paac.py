@@ -86,7 +86,7 @@ class PAACNetwork(nn.Module):
     def _step(
         self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, ...]:
-        maps = self.trunk(obs)  # (B, 32, 9, 9)
+        maps = self.trunk(obs.float())  # (B, 32, 9, 9); observations may come as float16
         if self.core_type == "ftlstm":
             h, c = self.cell(maps.flatten(2), (h, c))
             features = h

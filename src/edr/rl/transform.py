@@ -142,17 +142,23 @@ class FrameStack(_PerEnvStream):
     stacked over the last ``n`` steps, oldest first -> ``out_key`` (..., n * sum(C_i), H, W).
 
     An env that (re)starts repeats its first frame ``n`` times (as ``CatFrames(padding="same")``).
+    ``dtype=torch.float16`` halves the bytes each step writes (and a rollout stores).
     Each step writes one new stack in one pass, where torchrl's ``CatTensors`` then ``CatFrames``
     take five (cat; roll, copy, write, clone) and three allocations. The inputs stay as they are.
     """
 
     def __init__(
-        self, n: int, in_keys: Sequence[str] = ("observation",), out_key: str = "observation"
+        self,
+        n: int,
+        in_keys: Sequence[str] = ("observation",),
+        out_key: str = "observation",
+        dtype: torch.dtype | None = None,
     ) -> None:
         super().__init__(in_keys, [out_key])
         if n < 1:
             raise ValueError(f"FrameStack needs n >= 1, got {n}")
         self.n = n
+        self.dtype = dtype  # of the stack; None: the inputs' promoted dtype
 
     def _input(self, tensordict: TensorDictBase) -> list[torch.Tensor]:
         """-> one (N, C_i, H, W) tensor per in_key."""
@@ -161,7 +167,7 @@ class FrameStack(_PerEnvStream):
 
     def _restart(self, x: list[torch.Tensor], rows: torch.Tensor | None) -> torch.Tensor:
         frame = torch.cat(x if rows is None else [p[rows] for p in x], dim=1)
-        return frame.repeat(1, self.n, 1, 1)
+        return frame.repeat(1, self.n, 1, 1).to(self.dtype or frame.dtype)
 
     def _advance(self, x: list[torch.Tensor]) -> torch.Tensor:
         stack = torch.empty_like(self._last)  # a new tensor: the last one lives on in rollouts
@@ -176,7 +182,7 @@ class FrameStack(_PerEnvStream):
         specs = [observation_spec[key] for key in self.in_keys]
         first = specs[0]
         channels = self.n * sum(spec.shape[-3] for spec in specs)
-        dtype = functools.reduce(torch.promote_types, (spec.dtype for spec in specs))
+        dtype = self.dtype or functools.reduce(torch.promote_types, (s.dtype for s in specs))
         observation_spec[self.out_keys[0]] = Unbounded(
             shape=(*first.shape[:-3], channels, *first.shape[-2:]), dtype=dtype, device=first.device
         )

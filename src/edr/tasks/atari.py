@@ -101,6 +101,7 @@ def train_paac(
     fdr: str = "rgb",
     edr: EDR | None = None,
     frame_stack: int = 4,
+    obs_dtype: str = "float32",
     core: Core = "lstm",
     total_frames: int = 80_000_000,
     lr_decay_frames: int = 80_000_000,
@@ -126,6 +127,7 @@ def train_paac(
         "fdr": fdr,
         "edr": edr,
         "frame_stack": frame_stack,
+        "obs_dtype": obs_dtype,
     }
     probe = make_atari_env(mode="single", **env_kwargs)
     channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
