@@ -80,15 +80,15 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     (record_path,) = tmp_path.glob("atari_*.json")
     record = json.loads(record_path.read_text())
     assert [row["name"] for row in record["rows"]] == [
-        "Pong: FDR RGB, 2 frames, float32",
-        "Pong: FDR RGB + EDR gray, 2 frames, float32",
+        "Pong: FDR RGB, 2 frames, float16",
+        "Pong: FDR RGB + EDR gray, 2 frames, float16",
     ]
     assert all(row["fps"] > 0 and row["frames"] == 6 for row in record["rows"])
     assert len(record["costs"]) == 2 and record["cost"] == statistics.median(record["costs"])
     assert all(ms > 0 for ms in record["main_cpu_ms"])
     assert "EDR costs" in capsys.readouterr().out
     row = (tmp_path / "atari.md").read_text().splitlines()[-1]
-    assert row.startswith("| Pong | 2 | 2 | float32 |") and f"{record['cost']:.1f} %" in row
+    assert row.startswith("| Pong | 2 | 2 | float16 |") and f"{record['cost']:.1f} %" in row
     assert record_path.name in row
 
 

@@ -101,7 +101,7 @@ def train_paac(
     fdr: str = "rgb",
     edr: EDR | None = None,
     frame_stack: int = 4,
-    obs_dtype: str = "float32",
+    obs_dtype: str = "float16",
     core: Core = "lstm",
     total_frames: int = 80_000_000,
     lr_decay_frames: int = 80_000_000,
