@@ -6,8 +6,9 @@ Presets:
   clipped to their sign.
 - ``v5``: ALE v5's own defaults (frame skip 4, sticky actions 0.25), frames resized to 84x84.
 
-Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3 or gray 1 channel, /255) and/or
-EDR events computed on the fly (``EDRTransform``), stacked over ``frame_stack`` agent steps.
+Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3
+or gray 1 channel, /255) and/or EDR events computed on the fly (``EDRTransform``), stacked over
+``frame_stack`` agent steps (``FrameStack``).
 The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 """
 
