@@ -27,7 +27,8 @@ from tqdm import tqdm
 
 from edr.allocator import keep_freed_memory
 from edr.data import read_video, synthetic_scene
-from edr.records import git_revision, machine_info, write_json_atomic
+from edr.atomic import write_json_atomic
+from edr.records import git_revision, machine_info
 from edr.representations import (
     EDR,
     FDR,

@@ -1,4 +1,11 @@
-"""Run records: one JSON file per run, with everything needed to trust and regenerate a number."""
+"""Run records: one JSON file per run, with everything needed to trust and regenerate a number.
+
+``run.json`` holds the run's ``status`` (``running``, ``finished`` or ``failed`` with its
+``error``), its ``fingerprint`` and ``cell`` (see ``edr.identity``), the ``scale`` (``tiny``,
+``full`` or a named preset), the ``data`` it read (source, root, content fingerprint), flat
+scalar ``metrics``, the resolved config, the command-line overrides, git revision, machine and
+times. Curves, histories and confusion matrices are files beside it.
+"""
 
 from __future__ import annotations
 
@@ -7,12 +14,13 @@ import os
 import platform
 import socket
 import subprocess
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from edr.atomic import write_json_atomic
 
 RECORD_NAME = "run.json"
 
@@ -61,47 +69,24 @@ def machine_info() -> dict[str, Any]:
     return info
 
 
-def write_json_atomic(path: Path, payload: dict[str, Any]) -> Path:
-    """Write ``payload`` to ``path`` so that readers see the old file or the whole new one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(payload, f, indent=2, sort_keys=False, default=str)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def write_run_record(
-    out_dir: Path,
-    *,
-    task: str,
-    choices: dict[str, str],
-    config: dict[str, Any],
-    overrides: list[str],
-    metrics: dict[str, Any],
-    wall_time_s: float,
-) -> Path:
-    """Write ``out_dir/run.json``: config choices and resolved values, metrics, git, machine, time."""
-    record = {
-        "task": task,
-        "choices": choices,
-        "overrides": overrides,
-        "metrics": metrics,
-        "wall_time_s": round(wall_time_s, 3),
-        "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "git": git_revision(),
-        "machine": machine_info(),
-        "config": config,
-    }
+def write_record(out_dir: Path, record: dict[str, Any]) -> Path:
+    """Write ``out_dir/run.json`` whole (a reader never sees half a record)."""
     return write_json_atomic(Path(out_dir) / RECORD_NAME, record)
 
 
 def read_record(path: Path) -> dict[str, Any]:
     with open(path) as f:
         return json.load(f)
+
+
+def check_flat(metrics: dict[str, Any]) -> dict[str, Any]:
+    """``metrics`` if every value is a scalar (number, bool, string, None); curves, histories and
+    matrices belong in files beside the record."""
+    nested = [k for k, v in metrics.items() if not isinstance(v, int | float | bool | str | None)]
+    if nested:
+        raise TypeError(f"metrics must be flat scalars; write these as files instead: {nested}")
+    return metrics
+
+
+def now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")

@@ -1,5 +1,6 @@
-"""``edr-run``: the Hydra entry point. One run = one task with its representation; it ends by
-writing a run record (``run.json``) beside the run's artifacts.
+"""``edr-run``: the Hydra entry point. One run = one task with its representation, in a folder
+named from its overrides; it ends by writing a run record (``run.json``) beside the run's
+artifacts. Running the same command again skips a finished run and resumes an interrupted one.
 
     edr-run                                   # the demo on a generated video
     edr-run task.video=clip.avi task.frames=120
@@ -8,7 +9,10 @@ writing a run record (``run.json``) beside the run's artifacts.
 
 from __future__ import annotations
 
+import inspect
+import logging
 import random
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -17,12 +21,23 @@ import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
+from hydra.errors import InstantiationException
+from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from edr.records import write_run_record
+from edr.identity import job_dirname, run_identity
+from edr.records import check_flat, git_revision, machine_info, now, write_record
+from edr.store import Resume, log_attempt, plan_attempt
+from edr.validate import ConfigError, PositiveInt, check_config
 
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+# The entry point's own keys, checked like a task's arguments.
+ENTRY_KEYS = {"seed": int, "threads": PositiveInt | None, "resume": Resume, "scale": str}
+log = logging.getLogger(__name__)
+
+OmegaConf.register_new_resolver("edr.abspath", lambda p: str(Path(p).expanduser().resolve()))
+OmegaConf.register_new_resolver("edr.job_dir", lambda overrides: job_dirname(overrides))
+OmegaConf.register_new_resolver("edr.first", lambda *choices: next(c for c in choices if c))
 
 
 def seed_everything(seed: int) -> None:
@@ -31,44 +46,115 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def _hydra_context() -> tuple[dict[str, str], list[str]]:
+    """(config group choices, command-line overrides) of the Hydra run, empty outside one."""
+    if not HydraConfig.initialized():
+        return {}, []
+    hydra_cfg = HydraConfig.get()
+    choices = {k: str(v) for k, v in hydra_cfg.runtime.choices.items() if "hydra" not in k}
+    return choices, list(hydra_cfg.overrides.task)
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
-    """Run the task ``cfg`` describes and return its metrics; writes ``<out_dir>/run.json``."""
-    # ---- set-up ------------------------------------------------------------------------------
-    started = time.perf_counter()
+    """Run the task ``cfg`` describes in ``cfg.out_dir`` and return its flat metrics.
+
+    Checks the config first; skips a finished run of the same config, resumes from its
+    checkpoint an interrupted one, refuses a folder holding another config.
+    """
+    # ---- checks and the plan -----------------------------------------------------------------
+    check_config(cfg, entry=ENTRY_KEYS)
+    out_dir = Path(cfg.out_dir)
+    semantic, fingerprint, cell = run_identity(cfg)
+    plan = plan_attempt(out_dir, fingerprint, semantic, cfg.resume)
+    if plan.action == "skip":
+        log.info("%s: finished already with this config: skipped (resume=false reruns it)", out_dir)
+        log_attempt(out_dir, "skipped", fingerprint)
+        return plan.record["metrics"]
     seed_everything(cfg.seed)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    out_dir = Path(cfg.out_dir)
+    target = get_object(cfg.task._target_)
+    try:
+        task = instantiate(cfg.task)  # a partial function of the task's own arguments
+    except InstantiationException as error:
+        raise ConfigError(" ".join(str(error).split())) from error
+    arguments: dict[str, Any] = {"out_dir": out_dir, "seed": cfg.seed}
+    if "resume" in inspect.signature(target).parameters:
+        arguments["resume"] = plan.action == "resume"
+    if plan.action == "resume":
+        log.info("%s: resuming from its checkpoint", out_dir)
+
+    # ---- the record, then the task -----------------------------------------------------------
+    choices, overrides = _hydra_context()
+    previous = plan.record or {}
+    record: dict[str, Any] = {
+        "status": "running",
+        "task": choices.get("task", cfg.task._target_),
+        "fingerprint": fingerprint,
+        "cell": cell,
+        "seed": cfg.seed,
+        "scale": cfg.scale,
+        "attempt": previous.get("attempt", 0) + 1 if plan.action == "resume" else 1,
+        "resumed": plan.action == "resume",
+        "started_at": now(),
+        "choices": choices,
+        "overrides": overrides,
+        "git": git_revision(),
+        "machine": machine_info(),
+        "config": OmegaConf.to_container(cfg, resolve=True),
+        "semantic_config": semantic,
+    }
     out_dir.mkdir(parents=True, exist_ok=True)
-    resolved = OmegaConf.to_container(cfg, resolve=True)
-    task = instantiate(cfg.task)  # a partial function of the task's own arguments
+    write_record(out_dir, record)
+    started = time.perf_counter()
+    try:
+        results = task(**arguments)
+    except BaseException as error:
+        interrupted = isinstance(error, KeyboardInterrupt)
+        record.update(
+            status="failed",
+            error="interrupted" if interrupted else f"{type(error).__name__}: {error}",
+            wall_time_s=round(time.perf_counter() - started, 3),
+            ended_at=now(),
+        )
+        write_record(out_dir, record)
+        log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
+        raise
 
-    # ---- the task ----------------------------------------------------------------------------
-    metrics = task(out_dir=out_dir, seed=cfg.seed)
-
-    # ---- the record --------------------------------------------------------------------------
-    hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
-    choices = (
-        {k: str(v) for k, v in hydra_cfg.runtime.choices.items() if "hydra" not in k}
-        if hydra_cfg
-        else {}
+    # ---- the finished record -----------------------------------------------------------------
+    record.update(
+        status="finished",
+        data={k.removeprefix("data/"): v for k, v in results.items() if k.startswith("data/")},
+        metrics=check_flat({k: v for k, v in results.items() if not k.startswith("data/")}),
+        wall_time_s=round(time.perf_counter() - started, 3),
+        ended_at=now(),
     )
-    write_run_record(
-        out_dir,
-        task=choices.get("task", cfg.task._target_),
-        choices=choices,
-        config=resolved,
-        overrides=list(hydra_cfg.overrides.task) if hydra_cfg else [],
-        metrics=metrics,
-        wall_time_s=time.perf_counter() - started,
-    )
-    return metrics
+    write_record(out_dir, record)
+    log_attempt(out_dir, "resumed" if plan.action == "resume" else "ran", fingerprint)
+    return record["metrics"]
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def main(cfg: DictConfig) -> None:
-    run(cfg)
+    try:
+        run(cfg)
+    except ConfigError as error:
+        log.error("%s", error)
+        raise SystemExit(2) from None
+
+
+def cli() -> None:
+    """The ``edr-run`` command: Hydra's app, with Ctrl-C ending in one line instead of a trace."""
+    try:
+        main()
+    except KeyboardInterrupt:
+        print(
+            "\ninterrupted: run the same command again to resume "
+            "(finished runs are skipped, interrupted ones continue from their checkpoints)",
+            file=sys.stderr,
+        )
+        raise SystemExit(130) from None
 
 
 if __name__ == "__main__":
-    main()
+    cli()

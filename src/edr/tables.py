@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from edr.atomic import write_text_atomic
 from edr.records import read_record
 
 # The paper's KTH accuracy we can cite, by (representation, backbone) config names.
@@ -90,7 +91,7 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
 
 
 def write_speed_table(record: dict[str, Any], path: Path, source: str = "") -> Path:
-    return _write(speed_table(record, source), path)
+    return write_text_atomic(speed_table(record, source), path)
 
 
 def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
@@ -132,7 +133,7 @@ def write_atari_cost_table(bench_dir: Path, path: Path) -> Path | None:
     found = sorted(bench_dir.glob("atari_*.json"), key=lambda p: p.stat().st_mtime)
     if not found:
         return None
-    return _write(atari_cost_table([(p, read_record(p)) for p in found]), path)
+    return write_text_atomic(atari_cost_table([(p, read_record(p)) for p in found]), path)
 
 
 def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) -> str:
@@ -171,14 +172,6 @@ def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) ->
     return "\n".join(lines)
 
 
-def _write(text: str, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-    return path
-
-
 def task_records(root: Path, task: str) -> list[tuple[Path, dict[str, Any]]]:
     """Every run record under ``root`` (runs and sweeps) of ``task``, oldest first."""
     found = [
@@ -208,7 +201,7 @@ def main(argv: list[str] | None = None) -> None:
         text = recognition_table(records, f"Table 4 style: KTH runs under {args.runs}")
         print(text)
         if args.out:
-            print(f"wrote {_write(text, args.out)}")
+            print(f"wrote {write_text_atomic(text, args.out)}")
         return
     written = []
     speed = newest("bench/speed_*.json", args.results)
@@ -224,7 +217,7 @@ def main(argv: list[str] | None = None) -> None:
     kth_runs = task_records(args.results, "kth")
     if kth_runs:
         text = recognition_table(kth_runs, "Table 4: KTH, ours beside the paper's")
-        written.append(_write(text, args.paper / "table4_kth.md"))
+        written.append(write_text_atomic(text, args.paper / "table4_kth.md"))
     for path in written:
         print(f"wrote {path}")
 

@@ -9,8 +9,6 @@ centre, each also flipped) and averages the softmax over them.
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -20,6 +18,7 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
+from edr.atomic import atomic_path
 from edr.data.datasets import VideoSet
 from edr.data.video import read_video
 
@@ -27,19 +26,22 @@ PAPER_SCALES = (1.0, 0.875, 0.75, 0.66)
 
 
 class ArrayCache:
-    """Arrays computed once per video and kept as ``.npy`` under ``root/<key>/``.
+    """Arrays computed once per file and kept as ``.npy`` under ``root/<key>/``.
 
-    Writes are atomic, so an interrupted run leaves no half file; ``root=None`` keeps the
-    arrays in memory only.
+    An entry is keyed by the file's resolved path, size and modification time (a replaced video
+    gets a new entry) and, through ``key``, by the settings that made it. Entries are written
+    atomically, so an interrupted run leaves no half file and processes that fill the same cache
+    at once all succeed (a loser keeps the winner's entry). ``root=None`` keeps arrays in memory.
     """
 
     def __init__(self, root: str | Path | None, key: str) -> None:
-        self.dir = Path(root) / key if root is not None else None
+        self.dir = Path(root).resolve() / key if root is not None else None
         self._memory: dict[Path, np.ndarray] = {}
 
     def _file(self, path: Path) -> Path:
-        digest = hashlib.sha1(str(Path(path).resolve()).encode()).hexdigest()[:10]
-        return self.dir / f"{Path(path).stem}_{digest}.npy"
+        stat = Path(path).stat()
+        identity = f"{Path(path).resolve()}|{stat.st_size}|{stat.st_mtime_ns}"
+        return self.dir / f"{Path(path).stem}_{hashlib.sha1(identity.encode()).hexdigest()[:12]}.npy"
 
     def get(self, path: Path, compute: Callable[[Path], np.ndarray]) -> np.ndarray:
         if path in self._memory:
@@ -49,15 +51,10 @@ class ArrayCache:
         else:
             file = self._file(path)
             if not file.is_file():
-                file.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(dir=file.parent, suffix=".npy.partial")
-                try:
-                    with os.fdopen(fd, "wb") as f:
-                        np.save(f, compute(path))
-                    os.replace(tmp, file)
-                except BaseException:
-                    Path(tmp).unlink(missing_ok=True)
-                    raise
+                array = compute(path)
+                if not file.is_file():  # another process may have finished it meanwhile
+                    with atomic_path(file) as tmp:
+                        np.save(tmp, array)
             array = np.load(file, mmap_mode="r")
         self._memory[path] = array
         return array

@@ -16,14 +16,19 @@ KTH::
 
 from __future__ import annotations
 
+import logging
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
+from edr.data.fingerprint import files_fingerprint
 from edr.data.synthetic import KTH_ACTIONS
+from edr.identity import digest
+from edr.validate import ConfigError
 
 UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
@@ -32,6 +37,7 @@ UCF_LAYOUT = (
 KTH_LAYOUT = (
     f"<root>/<action>/personXX_<action>_dY_uncomp.avi for the actions {', '.join(KTH_ACTIONS)}"
 )
+log = logging.getLogger(__name__)
 KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.avi$")
 # Schuldt et al. (2004): training + validation persons, and the test persons.
 KTH_TRAIN_PERSONS = (11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 23, 24, 25, 1, 4)
@@ -58,8 +64,12 @@ class VideoSet:
         return len(self.videos)
 
 
-def _missing(root: Path, what: str, layout: str) -> FileNotFoundError:
-    return FileNotFoundError(f"{what} not found under {root}; expected the layout {layout}")
+class DataLayoutError(ConfigError, FileNotFoundError):
+    """A data root that is missing or not in its data set's official layout."""
+
+
+def _missing(root: Path, what: str, layout: str) -> DataLayoutError:
+    return DataLayoutError(f"{what} not found under {root}; expected the layout {layout}")
 
 
 def ucf101(root: str | Path, *, split: int = 1, train: bool = True) -> VideoSet:
@@ -148,3 +158,28 @@ def kth(
             f"the {protocol} split of {root} leaves no {'train' if train else 'test'} videos"
         )
     return VideoSet(tuple(chosen), KTH_ACTIONS)
+
+
+def resolve_root(
+    data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path
+) -> Path:
+    """``data_root`` when given; else the generated data set ``synthetic`` (a partial of one of
+    ``edr.data.synthetic``'s writers) writes once under ``cache_dir``, named by its settings."""
+    if data_root:
+        return Path(data_root)
+    settings = {"fn": synthetic.func.__name__, **synthetic.keywords}
+    root = Path(cache_dir).resolve() / f"{synthetic.func.__name__}_{digest(settings, 10)}"
+    if not root.exists():
+        log.info("no data_root given: generating a synthetic data set in %s", root)
+    return synthetic(root)
+
+
+def videos_fingerprint(root: Path, splits: dict[str, VideoSet]) -> str:
+    """The content fingerprint of every video of ``splits``, with its split and label."""
+    members = [
+        (name, str(v.path.relative_to(root)) if v.path.is_relative_to(root) else v.path.name, v.label)
+        for name, split in splits.items()
+        for v in split.videos
+    ]
+    paths = [v.path for split in splits.values() for v in split.videos]
+    return files_fingerprint(paths, root, extra=sorted(members))

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from edr.atomic import publish_dir
 from edr.data.video import write_video
 
 
@@ -127,18 +127,6 @@ def action_video(
     return out
 
 
-def _write_dataset(root: Path, write: callable) -> Path:
-    """Write a generated data set into ``root`` atomically: a crash leaves no half data set."""
-    root = Path(root)
-    if root.exists():
-        return root
-    tmp = root.with_name(f".{root.name}.partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    write(tmp)
-    tmp.rename(root)
-    return root
-
-
 def write_synthetic_kth(
     root: str | Path,
     *,
@@ -163,7 +151,7 @@ def write_synthetic_kth(
                     name = f"person{person:02d}_{action}_d{scenario}_uncomp.avi"
                     write_video(tmp / action / name, video)
 
-    return _write_dataset(root, write)
+    return publish_dir(root, write)
 
 
 def write_synthetic_ucf101(
@@ -207,4 +195,4 @@ def write_synthetic_ucf101(
             (lists / f"trainlist0{split}.txt").write_text("".join(train))
             (lists / f"testlist0{split}.txt").write_text("".join(test))
 
-    return _write_dataset(root, write)
+    return publish_dir(root, write)

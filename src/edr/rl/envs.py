@@ -15,9 +15,12 @@ The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 from __future__ import annotations
 
 import functools
+import hashlib
+import re
 from typing import Literal
 
 import ale_py
+import ale_py.roms
 import gymnasium as gym
 import torch
 from torchrl.envs import (
@@ -58,6 +61,15 @@ def gym_atari(game: str, preset: Preset = "paac", train: bool = True) -> gym.Env
     if preset == "v5":
         return gym.wrappers.ResizeObservation(gym.make(name), (84, 84))
     raise ValueError(f"preset must be 'paac' or 'v5', got {preset!r}")
+
+
+def rom_fingerprint(game: str) -> str:
+    """``ale-py <version>, <rom>.bin md5 <digest>``: which emulator and ROM a run played."""
+    rom_id = re.sub(r"(?<!^)(?=[A-Z])", "_", game).lower()  # MsPacman -> ms_pacman
+    path = ale_py.roms.get_rom_path(rom_id)
+    if path is None:
+        raise ValueError(f"ale-py {ale_py.__version__} has no ROM for the game {game!r}")
+    return f"ale-py {ale_py.__version__}, {path.name} md5 {hashlib.md5(path.read_bytes()).hexdigest()}"
 
 
 def _torchrl_atari(game: str, preset: Preset, train: bool) -> GymWrapper:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -29,11 +29,30 @@ from torchrl.modules import ProbabilisticActor
 from torchrl.objectives import A2CLoss
 from tqdm import tqdm
 
+from edr.atomic import write_json_atomic
 from edr.representations import EDR
-from edr.rl.envs import Preset, make_atari_env
+from edr.rl.envs import Preset, make_atari_env, rom_fingerprint
 from edr.rl.paac import Core, PAACNetwork, paac_module, recurrent_primer
-from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, save_atomic, save_checkpoint
+from edr.tasks.checkpoints import (
+    CHECKPOINT,
+    load_checkpoint,
+    restore,
+    save_atomic,
+    save_checkpoint,
+)
 from edr.tasks.plots import save_score_curve
+from edr.tasks.scalars import open_logger
+from edr.validate import (
+    Fraction,
+    LoggerName,
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+)
+
+NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
+HISTORY = "history.json"  # one row per update: env steps, losses, fps, mean training score
+SCORES = "eval_scores.json"  # the raw score of every evaluation game
 
 
 def _env(network: PAACNetwork, **kwargs: Any) -> TransformedEnv:
@@ -96,28 +115,28 @@ def train_paac(
     seed: int,
     game: str = "Pong",
     preset: Preset = "paac",
-    num_envs: int = 32,
-    env_mode: str = "parallel",
-    fdr: str = "rgb",
+    num_envs: PositiveInt = 32,
+    env_mode: Literal["parallel", "serial", "single"] = "parallel",
+    fdr: Literal["rgb", "gray", "none"] = "rgb",
     edr: EDR | None = None,
-    frame_stack: int = 4,
-    obs_dtype: str = "float16",
+    frame_stack: PositiveInt = 4,
+    obs_dtype: Literal["float16", "float32"] = "float16",
     core: Core = "lstm",
-    total_frames: int = 80_000_000,
-    lr_decay_frames: int = 80_000_000,
-    rollout_steps: int = 5,
-    lr: float = 0.0224,
-    rmsprop_alpha: float = 0.99,
-    rmsprop_eps: float = 0.1,
-    gamma: float = 0.99,
-    entropy_coeff: float = 0.02,
-    critic_coeff: float = 0.5,
-    max_grad_norm: float = 3.0,
-    eval_plays: int = 30,
-    eval_max_steps: int = 27_000,
-    checkpoint_every: int = 500,
+    total_frames: PositiveInt = 80_000_000,
+    lr_decay_frames: PositiveInt = 80_000_000,
+    rollout_steps: PositiveInt = 5,
+    lr: PositiveFloat = 0.0224,
+    rmsprop_alpha: Fraction = 0.99,
+    rmsprop_eps: PositiveFloat = 0.1,
+    gamma: Fraction = 0.99,
+    entropy_coeff: NonNegativeFloat = 0.02,
+    critic_coeff: NonNegativeFloat = 0.5,
+    max_grad_norm: PositiveFloat = 3.0,
+    eval_plays: PositiveInt = 30,
+    eval_max_steps: PositiveInt = 27_000,
+    checkpoint_every: PositiveInt = 500,
     resume: bool = False,
-    logger: str = "csv",
+    logger: LoggerName = "csv",
 ) -> dict[str, Any]:
     """Train PAAC on ``game``, then score ``eval_plays`` games; returns metrics."""
     # ---- envs, network, loss, optimizer ------------------------------------------------------
@@ -132,7 +151,8 @@ def train_paac(
     probe = make_atari_env(mode="single", **env_kwargs)
     channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
     probe.close()
-    network = PAACNetwork(channels, actions, core)
+    arguments = {"in_channels": channels, "num_actions": actions, "core": core}
+    network = PAACNetwork(**arguments)
     env = _env(network, num_envs=num_envs, mode=env_mode, **env_kwargs)
     env.set_seed(seed)
     actor = _actor(network, env)
@@ -151,15 +171,14 @@ def train_paac(
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda update: max(0.0, 1.0 - update * batch / lr_decay_frames)
     )
-    from torchrl.record.loggers import get_logger  # heavy import, only where it is used
-
-    log = get_logger(logger, logger_name=str(out_dir), experiment_name="logs") if logger else None
     frames_done, history = 0, []
     checkpoint = out_dir / CHECKPOINT
     parts = {"network": network, "optimizer": optimizer, "schedule": schedule}
-    if resume and checkpoint.is_file():
-        state = load_checkpoint(checkpoint, parts)  # episodes in progress restart
+    if resume:
+        state = load_checkpoint(checkpoint)
+        restore(state, parts)  # episodes in progress restart
         frames_done, history = state["frames"], state["history"]
+    scalars = open_logger(logger, out_dir, step=frames_done)
 
     def save() -> None:
         save_checkpoint(checkpoint, parts, frames=frames_done, history=history)
@@ -206,10 +225,10 @@ def train_paac(
             if recent:
                 row["train/score"] = float(np.mean(recent))
             history.append(row)
-            if log is not None:
+            if scalars is not None:
                 for key, value in row.items():
                     if key != "frames":
-                        log.log_scalar(key, value, step=frames_done)
+                        scalars.log_scalar(key, value, step=frames_done)
             bar.update(data.numel())
             bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
             if update % checkpoint_every == 0:
@@ -224,12 +243,17 @@ def train_paac(
     eval_env.set_seed(seed + 1)
     scores = play(network, eval_env, eval_plays, eval_max_steps)
     eval_env.close()
-    save_atomic(network, out_dir / "network.pt")
+    save_atomic({"state_dict": network.state_dict(), "arguments": arguments}, out_dir / NETWORK)
+    write_json_atomic(out_dir / HISTORY, history)
+    write_json_atomic(out_dir / SCORES, scores)
     save_score_curve(
         history, out_dir / "training_curve.png", title=f"{game}, {'FDR+EDR' if edr else 'FDR'}"
     )
     scored = [row for row in history if "train/score" in row]
     return {
+        "data/source": "emulator",
+        "data/game": game,
+        "data/fingerprint": rom_fingerprint(game),
         "train/frames": frames_done,
         "train/fps": history[-1]["train/fps"] if history else float("nan"),
         "train/score_first": scored[0]["train/score"] if scored else None,
@@ -239,6 +263,12 @@ def train_paac(
         "eval/min": float(np.min(scores)),
         "eval/max": float(np.max(scores)),
         "eval/mean": float(np.mean(scores)),
-        "eval/scores": scores,
-        "curve": [(row["frames"], row["train/score"]) for row in scored],
     }
+
+
+def load_network(run_dir: str | Path) -> PAACNetwork:
+    """The network an Atari run trained, rebuilt from ``network.pt``."""
+    saved = torch.load(Path(run_dir) / NETWORK, weights_only=True)
+    network = PAACNetwork(**saved["arguments"])
+    network.load_state_dict(saved["state_dict"])
+    return network

@@ -1,49 +1,63 @@
-"""Checkpoints the training tasks write after every epoch or every few updates, and read back."""
+"""Checkpoints the training tasks write after every epoch or every few updates, and read back.
+
+A checkpoint holds state dicts, RNG states as tensors and plain values only, so it loads with
+``torch.load(..., weights_only=True)``; models are saved the same way, as their ``state_dict``
+beside the arguments that rebuild them.
+"""
 
 from __future__ import annotations
 
-import os
+import logging
 import random
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from edr.atomic import atomic_path
+
 CHECKPOINT = "checkpoint.pt"
+log = logging.getLogger(__name__)
 
 
 def save_atomic(payload: object, path: Path) -> None:
     """``torch.save`` so that ``path`` holds the old file or the whole new one, never half."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".partial")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(payload, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+
+def _rng_state() -> dict[str, Any]:
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.copy()), "pos": pos,
+                  "has_gauss": has_gauss, "cached": cached},
+        "python": random.getstate(),
+    }  # fmt: skip
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy(), n["pos"], n["has_gauss"], n["cached"]))
+    random.setstate(state["python"])
 
 
 def save_checkpoint(path: Path, parts: dict[str, Any], **extra: Any) -> None:
     """The state dicts of ``parts`` (model, optimizer, schedule...), the RNG states, ``extra``."""
     payload = {name: part.state_dict() for name, part in parts.items()}
-    payload["rng"] = {
-        "torch": torch.get_rng_state(),
-        "numpy": np.random.get_state(),
-        "python": random.getstate(),
-    }
-    save_atomic({**payload, **extra}, path)
+    save_atomic({**payload, "rng": _rng_state(), **extra}, path)
 
 
-def load_checkpoint(path: Path, parts: dict[str, Any]) -> dict[str, Any]:
-    """Restore ``parts`` and the RNG states from ``path``; returns the whole payload."""
-    state = torch.load(path, weights_only=False)
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """The payload ``save_checkpoint`` wrote (tensors and plain values only)."""
+    log.info("resuming from %s", path)
+    return torch.load(path, weights_only=True)
+
+
+def restore(state: dict[str, Any], parts: dict[str, Any]) -> None:
+    """Load ``parts``' state dicts and the RNG states from a loaded checkpoint."""
     for name, part in parts.items():
         part.load_state_dict(state[name])
-    torch.set_rng_state(state["rng"]["torch"])
-    np.random.set_state(state["rng"]["numpy"])
-    random.setstate(state["rng"]["python"])
-    print(f"resuming {path}")
-    return state
+    _set_rng_state(state["rng"])

@@ -17,12 +17,16 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from edr.atomic import write_json_atomic
 from edr.data.clips import VideoSource, resize_clip, take_frames
-from edr.data.datasets import VideoSet
+from edr.data.datasets import VideoSet, resolve_root
 from edr.data.events import list_recordings, read_recording
+from edr.data.fingerprint import files_fingerprint
 from edr.representations import EDR, DVSSimulator, events_to_frames
+from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
-from edr.tasks.recognition import MODEL, confusion_matrix, dataset_root
+from edr.tasks.recognition import CONFUSION, Fitted
+from edr.validate import Fraction, NonNegativeInt, PositiveFloat, PositiveInt
 
 
 def _event_clip(
@@ -68,7 +72,7 @@ def dvs_transfer(
     *,
     out_dir: Path,
     seed: int,
-    pretrain: Callable[..., dict[str, Any]],
+    pretrain: Callable[..., Fitted],
     optimizer: Callable[..., torch.optim.Optimizer],
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
@@ -76,22 +80,25 @@ def dvs_transfer(
     cache_dir: str = "results/cache",
     dvs_root: str | None = None,
     simulator: dict[str, float] | None = None,
-    streams_per_class: int = 10,
-    resize: tuple[int, int] = (89, 67),
-    max_frames: int | None = 90,
-    frames: int = 60,
-    crop: int = 58,
-    train_fraction: float = 0.7,
-    finetune_epochs: int = 20,
-    batch_size: int = 8,
-    event_scale: float = 1.0,
+    streams_per_class: PositiveInt = 10,
+    resize: tuple[PositiveInt, PositiveInt] = (89, 67),
+    max_frames: PositiveInt | None = 90,
+    frames: PositiveInt = 60,
+    crop: PositiveInt = 58,
+    train_fraction: Fraction = 0.7,
+    finetune_epochs: NonNegativeInt = 20,
+    batch_size: PositiveInt = 8,
+    event_scale: PositiveFloat = 1.0,
+    resume: bool = False,
 ) -> dict[str, Any]:
-    """Pre-train on KTH with EDR, then fine-tune and test on event-camera frames; returns metrics."""
+    """Pre-train on KTH with EDR, then fine-tune and test on event-camera frames; returns metrics.
+
+    ``resume`` continues the pre-training from its checkpoint; fine-tuning is short and reruns.
+    """
     # ---- 1. the ConvNet+RCN trained on KTH with EDR ------------------------------------------
     pretrain_dir = out_dir / "pretrain"
     pretrain_dir.mkdir(parents=True, exist_ok=True)
-    pretrained = pretrain(out_dir=pretrain_dir, seed=seed)
-    model = torch.load(pretrain_dir / MODEL, weights_only=False)
+    model, pretrained = pretrain(out_dir=pretrain_dir, seed=seed, resume=resume)
     edr = model.representation
     if not isinstance(edr, EDR) or edr.out_channels(1) != 2:
         raise ValueError(
@@ -102,20 +109,21 @@ def dvs_transfer(
 
     # ---- 2. event recordings, as [ON, OFF] frames -------------------------------------------
     sim = DVSSimulator(**(simulator or {}))
-    root = dataset_root(data_root, synthetic, cache_dir)
+    root = resolve_root(data_root, synthetic, cache_dir)
     classes = videos(root, train=True).classes
     clips, labels = [], []
     if dvs_root:
         source_name = f"recordings under {dvs_root}"
-        for path, label in tqdm(
-            list_recordings(dvs_root, classes), desc="reading recordings", unit="file"
-        ):
+        recordings = list_recordings(dvs_root, classes)
+        fingerprint = files_fingerprint([p for p, _ in recordings], Path(dvs_root))
+        for path, label in tqdm(recordings, desc="reading recordings", unit="file"):
             events = read_recording(path)
             h, w = _sensor_size(events, path)
             clips.append(_event_clip(events, h, w, sim.frame_us, frames, crop))
             labels.append(label)
     else:
         source_name = f"DVS simulator on {streams_per_class} videos per class of {root}"
+        fingerprint = pretrained["data/fingerprint"]
         frame_source = VideoSource(cache_dir, size=tuple(resize), gray=True, max_frames=max_frames)
         pool = [v for split in (True, False) for v in videos(root, train=split).videos]
         chosen = [
@@ -153,16 +161,19 @@ def dvs_transfer(
         bar.set_postfix(loss=f"{loss.item():.3f}")
     predicted = _predict(backbone, clips_t[test_idx])
     true = labels_np[test_idx]
-    matrix = confusion_matrix(predicted, true, len(classes))
-    save_confusion(matrix, classes, out_dir / "confusion.png")
+    scores, confusion = classification_metrics(predicted, true, classes)
+    write_json_atomic(out_dir / CONFUSION, confusion)
+    save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
+    real = (data_root is not None) + (dvs_root is not None)  # KTH videos, event recordings
     return {
+        "data/source": ("generated", "mixed", "real")[real],
+        "data/synthetic": real < 2,
         "data/events": source_name,
-        "data/synthetic": data_root is None and dvs_root is None,
+        "data/fingerprint": fingerprint,
+        "data/pretrain_fingerprint": pretrained["data/fingerprint"],
         "data/train_recordings": len(train_idx),
         "data/test_recordings": len(test_idx),
         "pretrain/eval/accuracy": pretrained["eval/accuracy"],
         "eval/zero_shot_accuracy": float((zero_shot == true).mean()),
-        "eval/accuracy": float((predicted == true).mean()),
-        "eval/chance": 1.0 / len(classes),
-        "eval/confusion": matrix.tolist(),
+        **scores,
     }

@@ -11,6 +11,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from edr.atomic import atomic_path
+
 
 def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path:
     """Training loss and accuracy, and test accuracy where measured, against epochs."""
@@ -29,7 +31,8 @@ def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path
     ax_acc.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
     ax_acc.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return path
 
@@ -45,7 +48,8 @@ def save_confusion(matrix: np.ndarray, classes: Sequence[str], path: Path) -> Pa
         ax.set_yticks(range(len(classes)), classes, fontsize=7)
     ax.set(xlabel="predicted", ylabel="true")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return path
 
@@ -57,6 +61,7 @@ def save_score_curve(history: Sequence[dict[str, float]], path: Path, title: str
     ax.plot([r["frames"] for r in scored], [r["train/score"] for r in scored], "k-")
     ax.set(xlabel="env steps", ylabel="mean score (last 20 episodes)", title=title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return path

@@ -1,49 +1,46 @@
 """Video recognition (the paper's Tables 2 and 4): train a representation x backbone, test it.
 
 One function, top to bottom: data, model, optimizer; the epoch loop with a checkpoint after
-every epoch (``resume=true`` continues from the run directory's last one); then the final
+every epoch (``resume=True`` continues from the run directory's last one); then the final
 10-crop video accuracy, per-class accuracy, confusion matrix, learning curve and activation
-sparsity per layer.
+sparsity per layer. ``fit_recognition`` also returns the trained model (DVS transfer keeps
+it); ``train_recognition``, the tasks' entry, returns the metrics only.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
+import functools
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
+from hydra.utils import instantiate
 from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
+from edr.atomic import write_json_atomic
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
-from edr.data.datasets import VideoSet
+from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity
+from edr.records import RECORD_NAME, read_record
 from edr.representations import Representation
-from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, save_atomic, save_checkpoint
+from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, save_checkpoint
+from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
+from edr.tasks.scalars import open_logger
+from edr.validate import LoggerName, NonNegativeInt, PositiveFloat, PositiveInt
 
-MODEL = "model.pt"  # the trained RecognitionModel, whole (torch.save), for later tasks
+MODEL = "model.pt"  # the trained model's state_dict and the backbone's size arguments
+HISTORY = "history.json"  # one row per epoch: train loss and accuracy, test accuracy, lr
+CONFUSION = "confusion.json"  # the final confusion matrix with its class names
 
 
-def dataset_root(
-    data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path
-) -> Path:
-    """``data_root`` when given; else the generated data set ``synthetic`` writes (once) in the cache."""
-    if data_root:
-        return Path(data_root)
-    settings = json.dumps({"fn": synthetic.func.__name__, **synthetic.keywords}, sort_keys=True)
-    root = (
-        Path(cache_dir)
-        / f"{synthetic.func.__name__}_{hashlib.sha1(settings.encode()).hexdigest()[:10]}"
-    )
-    if not root.exists():
-        print(f"no data.root given: generating a synthetic data set in {root}")
-    return synthetic(root)
+class Fitted(NamedTuple):
+    model: RecognitionModel
+    metrics: dict[str, Any]
 
 
 @torch.no_grad()
@@ -64,14 +61,19 @@ def evaluate(
     return np.concatenate(predicted), np.concatenate(true)
 
 
-def confusion_matrix(predicted: np.ndarray, true: np.ndarray, classes: int) -> np.ndarray:
-    """(classes, classes) counts, rows = true class, columns = predicted class."""
-    matrix = np.zeros((classes, classes), np.int64)
-    np.add.at(matrix, (true, predicted), 1)
-    return matrix
+def load_model(run_dir: str | Path) -> RecognitionModel:
+    """The model a recognition run trained, rebuilt from its record's config and ``model.pt``."""
+    run_dir = Path(run_dir)
+    config = read_record(run_dir / RECORD_NAME)["config"]
+    saved = torch.load(run_dir / MODEL, weights_only=True)
+    representation = instantiate(config["representation"]) if saved["online"] else None
+    backbone = instantiate(config["backbone"])(**saved["backbone_args"])
+    model = RecognitionModel(representation, backbone)
+    model.load_state_dict(saved["state_dict"])
+    return model
 
 
-def train_recognition(
+def fit_recognition(
     *,
     out_dir: Path,
     seed: int,
@@ -82,31 +84,35 @@ def train_recognition(
     synthetic: Callable[..., Path],
     data_root: str | None = None,
     cache_dir: str = "results/cache",
-    resize: Sequence[int] = (89, 67),
+    resize: tuple[PositiveInt, PositiveInt] = (89, 67),
     gray: bool = False,
-    max_frames: int | None = None,
-    frames: int = 60,
-    crop: int = 58,
-    scales: Sequence[float] = PAPER_SCALES,
-    epochs: int = 26,
-    clips_per_epoch: int = 9000,
-    batch_size: int = 15,
-    milestones: Sequence[int] = (13, 24),
-    gamma: float = 0.1,
-    eval_every: int = 1,
+    max_frames: PositiveInt | None = None,
+    frames: PositiveInt = 60,
+    crop: PositiveInt = 58,
+    scales: Sequence[PositiveFloat] = PAPER_SCALES,
+    epochs: PositiveInt = 26,
+    clips_per_epoch: PositiveInt = 9000,
+    batch_size: PositiveInt = 15,
+    milestones: Sequence[PositiveInt] = (13, 24),
+    gamma: PositiveFloat = 0.1,
+    eval_every: PositiveInt = 1,
     resume: bool = False,
-    logger: str = "csv",
+    logger: LoggerName = "csv",
     device: str = "auto",
-    num_workers: int = 0,
-) -> dict[str, Any]:
-    """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns metrics."""
-    # ---- data --------------------------------------------------------------------------------
+    num_workers: NonNegativeInt = 0,
+) -> Fitted:
+    """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
+    model and the metrics, and writes the history, confusion matrix, figures and model."""
+    # ---- data, checkpoint, logger ----------------------------------------------------------------
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     dev = torch.device(device)
-    root = dataset_root(data_root, synthetic, cache_dir)
+    root = resolve_root(data_root, synthetic, cache_dir)
     train_videos, test_videos = videos(root, train=True), videos(root, train=False)
     classes = train_videos.classes
+    checkpoint = out_dir / CHECKPOINT
+    state = load_checkpoint(checkpoint) if resume else None
+    scalars = open_logger(logger, out_dir, step=state["epoch"] if state else 0)
     frame_source = VideoSource(cache_dir, size=tuple(resize), gray=gray, max_frames=max_frames)
     if representation.precompute:  # computed once per video, like the paper's flows
         source: Callable = PrecomputedSource(frame_source, representation, cache_dir)
@@ -127,7 +133,7 @@ def train_recognition(
         test_videos, source, frames=frames, crop=crop, train=False, negate=negate
     )
 
-    # ---- model, optimizer, logger ------------------------------------------------------------
+    # ---- model, optimizer ------------------------------------------------------------------------
     in_channels = representation.out_channels(frame_source.channels)
     net = backbone(
         in_channels=in_channels,
@@ -139,15 +145,11 @@ def train_recognition(
     model = RecognitionModel(online, net).to(dev)
     opt = optimizer(model.parameters())
     scheduler = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(milestones), gamma=gamma)
-    from torchrl.record.loggers import get_logger  # heavy import, only where it is used
-
-    log = get_logger(logger, logger_name=str(out_dir), experiment_name="logs") if logger else None
     history: list[dict[str, float]] = []
     start_epoch = 0
-    checkpoint = out_dir / CHECKPOINT
     parts = {"model": model, "optimizer": opt, "scheduler": scheduler}
-    if resume and checkpoint.is_file():
-        state = load_checkpoint(checkpoint, parts)
+    if state is not None:
+        restore(state, parts)
         history, start_epoch = state["history"], state["epoch"]
     loss_fn = nn.CrossEntropyLoss()
 
@@ -184,34 +186,51 @@ def train_recognition(
             predicted, true = evaluate(model, test_set, dev)
             row["eval/accuracy"] = float((predicted == true).mean())
         history.append(row)
-        if log is not None:
+        if scalars is not None:
             for key, value in row.items():
                 if key != "epoch":
-                    log.log_scalar(key, value, step=epoch + 1)
+                    scalars.log_scalar(key, value, step=epoch + 1)
         save_checkpoint(checkpoint, parts, history=history, epoch=epoch + 1)
 
     # ---- final evaluation --------------------------------------------------------------------
     predicted, true = evaluate(model, test_set, dev)
-    matrix = confusion_matrix(predicted, true, len(classes))
-    per_class = matrix.diagonal() / np.maximum(matrix.sum(1), 1)
+    scores, confusion = classification_metrics(predicted, true, classes)
     probe = torch.stack([train_set[i][0] for i in range(min(4, len(train_set)))]).to(dev)
     model.eval()
     sparsity = activation_sparsity(model, probe)
-    save_atomic(model.cpu(), out_dir / MODEL)
+    model.cpu()
+    backbone_args = {
+        "in_channels": in_channels,
+        "num_classes": len(classes),
+        "frames": clip_frames,
+        "height": crop,
+        "width": crop,
+    }
+    save_atomic(
+        {"state_dict": model.state_dict(), "online": online is not None, "backbone_args": backbone_args},
+        out_dir / MODEL,
+    )
+    write_json_atomic(out_dir / HISTORY, history)
+    write_json_atomic(out_dir / CONFUSION, confusion)
     save_learning_curve(history, out_dir / "learning_curve.png")
-    save_confusion(matrix, classes, out_dir / "confusion.png")
+    save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
     metrics: dict[str, Any] = {
-        "data/root": str(root),
+        "data/source": "real" if data_root else "generated",
         "data/synthetic": data_root is None,
+        "data/root": str(root),
+        "data/fingerprint": videos_fingerprint(root, {"train": train_videos, "test": test_videos}),
         "data/train_videos": len(train_videos),
         "data/test_videos": len(test_videos),
-        "eval/accuracy": float((predicted == true).mean()),
-        "eval/chance": 1.0 / len(classes),
+        **scores,
+        "train/epochs": len(history),
         "train/loss": history[-1]["train/loss"] if history else float("nan"),
         "model/parameters": sum(p.numel() for p in model.parameters()),
-        **{f"eval/per_class/{c}": float(a) for c, a in zip(classes, per_class, strict=True)},
         **{f"sparsity/{name}": value for name, value in sparsity.items()},
-        "eval/confusion": matrix.tolist(),
-        "history": history,
     }
-    return metrics
+    return Fitted(model, metrics)
+
+
+@functools.wraps(fit_recognition)
+def train_recognition(**settings: Any) -> dict[str, Any]:
+    """``fit_recognition``'s metrics: the entry of the KTH and UCF-101 tasks."""
+    return fit_recognition(**settings).metrics

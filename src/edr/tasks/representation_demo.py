@@ -7,6 +7,7 @@ like Figure 3b) into the run directory.
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 from typing import Any
@@ -18,8 +19,13 @@ import matplotlib.pyplot as plt
 import torch
 from tqdm import tqdm
 
+from edr.atomic import atomic_path
 from edr.data import read_video, synthetic_scene
+from edr.data.fingerprint import files_fingerprint
 from edr.representations import Representation
+from edr.validate import PositiveInt
+
+log = logging.getLogger(__name__)
 
 
 def representation_demo(
@@ -28,9 +34,9 @@ def representation_demo(
     seed: int,
     representations: dict[str, Representation],
     video: str | None = None,
-    frames: int = 48,
-    height: int = 120,
-    width: int = 160,
+    frames: PositiveInt = 48,
+    height: PositiveInt = 120,
+    width: PositiveInt = 160,
     show_frame: int | None = None,
     pixel: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
@@ -38,10 +44,10 @@ def representation_demo(
     # ---- the clip ----------------------------------------------------------------------------
     if video:
         clip = read_video(video, max_frames=frames, size=(width, height))
-        source = str(video)
+        source, fingerprint = str(video), files_fingerprint([Path(video)], Path(video).parent)
     else:
         clip = synthetic_scene(frames, height, width, seed=seed)
-        source = f"generated scene (seed {seed})"
+        source, fingerprint = f"generated scene (seed {seed})", "generated"
     t_count = clip.shape[0]
     if t_count < 2:
         raise ValueError(f"the demo needs at least 2 frames, {source} gave {t_count}")
@@ -54,7 +60,12 @@ def representation_demo(
 
     # ---- every representation ----------------------------------------------------------------
     outputs: dict[str, torch.Tensor] = {}
-    metrics: dict[str, Any] = {"data/source": source, "data/frames": t_count}
+    metrics: dict[str, Any] = {
+        "data/source": "real" if video else "generated",
+        "data/video": source,
+        "data/fingerprint": fingerprint,
+        "data/frames": t_count,
+    }
     for name, rep in (bar := tqdm(representations.items(), desc="representations", unit="rep")):
         bar.set_postfix_str(name)
         start = time.perf_counter()
@@ -78,7 +89,8 @@ def representation_demo(
     fig.suptitle(f"frame {shown} of {source}", fontsize=9)
     fig.tight_layout()
     picture_path = out_dir / "representations.png"
-    fig.savefig(picture_path, dpi=120)
+    with atomic_path(picture_path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
     # ---- Figure 3b: one pixel over time ------------------------------------------------------
@@ -97,10 +109,11 @@ def representation_demo(
     fig.suptitle(f"pixel (y={y}, x={x})", fontsize=9)
     fig.tight_layout()
     response_path = out_dir / "pixel_response.png"
-    fig.savefig(response_path, dpi=120)
+    with atomic_path(response_path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
-    print(f"figures: {picture_path}\n         {response_path}")
+    log.info("figures: %s, %s", picture_path, response_path)
     metrics.update(
         {"figure/representations": str(picture_path), "figure/pixel": str(response_path)}
     )

@@ -1,0 +1,79 @@
+"""The one way this suite writes a durable file: a temporary file in the same folder, flushed to
+disk, then renamed over the target. A reader sees the old file or the whole new one, never half;
+an interrupted writer leaves no partial file behind. Files get the usual permissions (0666 less
+the umask), so a group can read what a sweep wrote.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on a clean exit it becomes ``path``, else vanishes.
+
+    The temporary name keeps ``path``'s suffix, so writers that pick a format from it (OpenCV,
+    matplotlib, numpy) write the right one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".partial{path.suffix}")
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
+
+
+def write_json_atomic(path: str | Path, payload: Any) -> Path:
+    """``payload`` as indented JSON (non-JSON values as their ``str``)."""
+    return write_text_atomic(path, json.dumps(payload, indent=2, default=str) + "\n")
+
+
+def publish_dir(root: str | Path, write: Callable[[Path], None]) -> Path:
+    """Fill a new folder with ``write(tmp)`` and rename it to ``root``, unless ``root`` exists.
+
+    Safe when several processes publish the same folder at once: each writes its own temporary
+    folder; the first rename wins and the others discard theirs and use the winner's.
+    """
+    root = Path(root)
+    if root.exists():
+        return root
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.", suffix=".partial"))
+    try:
+        write(tmp)
+        os.chmod(tmp, 0o777 & ~_umask())
+        try:
+            tmp.rename(root)
+        except OSError:
+            if not root.is_dir():
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return root

@@ -1,0 +1,103 @@
+"""What makes two runs the same run: the fingerprint of the config, minus what cannot change a
+result (where files go, threads, loggers, resume flags). A sweep maps each cell to a folder named
+from the job's own overrides, minus the same keys, so that the same command finds the same
+folders again.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import re
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+# Keys (the last part of a dotted key) that never change a result.
+NON_SEMANTIC = frozenset(
+    {
+        "out_dir",  # where the run writes
+        "cache_dir",  # where decoded frames are kept
+        "threads",  # CPU threads
+        "resume",  # whether a run continues its checkpoint
+        "logger",  # where scalars are logged
+        "checkpoint_every",  # how often a checkpoint is written
+        "num_workers",  # DataLoader worker processes
+        "device",  # cpu or cuda: the machine is recorded separately
+    }
+)
+# Whole sections that never change a result.
+NON_SEMANTIC_SECTIONS = frozenset({"hydra", "paths"})
+MAX_DIRNAME = 120  # longer job folder names end in a digest
+
+
+def semantic_config(config: Mapping[str, Any]) -> dict[str, Any]:
+    """``config`` (a resolved, plain dict) without the keys that cannot change a result."""
+
+    def strip(node: Any) -> Any:
+        if isinstance(node, Mapping):
+            return {k: strip(v) for k, v in node.items() if k not in NON_SEMANTIC}
+        if isinstance(node, list | tuple):
+            return [strip(v) for v in node]
+        return node
+
+    return {k: strip(v) for k, v in config.items() if k not in NON_SEMANTIC_SECTIONS | NON_SEMANTIC}
+
+
+def digest(payload: Any, length: int = 16) -> str:
+    """A stable hex digest of a JSON-able value (dict keys in sorted order)."""
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:length]
+
+
+def run_identity(cfg: DictConfig) -> tuple[dict[str, Any], str, str]:
+    """(semantic config, fingerprint, cell): the cell is the fingerprint with the seed taken out
+    everywhere it is used (``${seed}`` interpolations too), so seeds of one cell share it."""
+    semantic = semantic_config(OmegaConf.to_container(cfg, resolve=True))
+    unseeded = copy.deepcopy(cfg)
+    unseeded.seed = None
+    cell = semantic_config(OmegaConf.to_container(unseeded, resolve=True))
+    return semantic, digest(semantic), digest(cell)
+
+
+def flatten(node: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts -> {"a.b.c": leaf}; lists stay leaves."""
+    if not isinstance(node, Mapping):
+        return {prefix: node}
+    flat: dict[str, Any] = {}
+    for key, value in node.items():
+        flat.update(flatten(value, f"{prefix}.{key}" if prefix else str(key)))
+    return flat
+
+
+def config_diff(old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
+    """The keys whose values differ, as ``key: old -> new`` (``<absent>`` where one lacks it)."""
+    a, b = flatten(old), flatten(new)
+    missing = "<absent>"
+    return [
+        f"{key}: {a.get(key, missing)!r} -> {b.get(key, missing)!r}"
+        for key in sorted(a.keys() | b.keys())
+        if a.get(key, missing) != b.get(key, missing)
+    ]
+
+
+def override_key(override: str) -> str:
+    """``+task.x=1`` -> ``task.x``."""
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+def is_semantic_override(override: str) -> bool:
+    parts = override_key(override).split(".")
+    return parts[0] not in NON_SEMANTIC_SECTIONS and parts[-1] not in NON_SEMANTIC
+
+
+def job_dirname(overrides: Iterable[str]) -> str:
+    """A folder name for a job from its command-line overrides: the semantic ones, sorted by key,
+    ``key=value`` joined by commas, path separators replaced; ``defaults`` when there are none."""
+    kept = sorted((o.lstrip("+") for o in overrides if is_semantic_override(o)), key=override_key)
+    name = re.sub(r"[/\\\s]+", "_", ",".join(kept)) or "defaults"
+    if len(name) > MAX_DIRNAME:
+        name = f"{name[: MAX_DIRNAME - 17]}_{digest(name)}"
+    return name

@@ -1,0 +1,164 @@
+"""Check a config before any work starts: every value a task, data set, representation or model
+receives is checked against the type its function declares (``epochs: PositiveInt``), ranges
+and choices included. Each failure is one line naming the key and what was expected.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+import types
+import typing
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+from hydra.utils import get_object
+from omegaconf import DictConfig, ListConfig
+
+
+class ConfigError(ValueError):
+    """A setting that cannot work; the message is one line naming the key."""
+
+
+@dataclass(frozen=True)
+class Range:
+    """A number's allowed interval; ``open`` excludes the low end."""
+
+    low: float | None = None
+    high: float | None = None
+    open: bool = False
+
+    def problem(self, value: float) -> str | None:
+        if self.low is not None and (value <= self.low if self.open else value < self.low):
+            return f"a number {'>' if self.open else '>='} {self.low}"
+        if self.high is not None and value > self.high:
+            return f"a number <= {self.high}"
+        return None
+
+
+@dataclass(frozen=True)
+class Check:
+    """Any other condition: ``test(value)`` returns what was expected, or None if it holds."""
+
+    test: Callable[[Any], str | None]
+
+    def problem(self, value: Any) -> str | None:
+        return self.test(value)
+
+
+PositiveInt = Annotated[int, Range(1)]
+NonNegativeInt = Annotated[int, Range(0)]
+PositiveFloat = Annotated[float, Range(0, open=True)]
+NonNegativeFloat = Annotated[float, Range(0)]
+Fraction = Annotated[float, Range(0, 1, open=True)]
+
+# The torchrl loggers a task can write to, and the package each needs.
+LOGGER_PACKAGES = {"csv": None, "tensorboard": "tensorboard", "mlflow": "mlflow", "wandb": "wandb"}
+
+
+def _logger_problem(name: Any) -> str | None:
+    if name in ("", None):
+        return None
+    if name not in LOGGER_PACKAGES:
+        return f"one of {', '.join(LOGGER_PACKAGES)} or '' (no logger)"
+    package = LOGGER_PACKAGES[name]
+    if package and importlib.util.find_spec(package) is None:
+        return f"the {package} package installed for logger={name} (pip install '.[loggers]')"
+    return None
+
+
+LoggerName = Annotated[str, Check(_logger_problem)]
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, ListConfig):
+        return list(value)
+    return value
+
+
+def _describe(hint: Any) -> str:
+    origin = typing.get_origin(hint)
+    if hint is type(None):
+        return "null"
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(hint))
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) for a in typing.get_args(hint))
+    if origin in (list, tuple, Sequence) or hint in (list, tuple):
+        return "a list"
+    names = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
+    return names.get(hint, getattr(hint, "__name__", str(hint)))
+
+
+def mismatch(value: Any, hint: Any) -> str | None:
+    """What ``value`` should have been to match ``hint``, or None if it matches."""
+    value = _plain(value)
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Annotated:
+        inner = mismatch(value, args[0])
+        if inner:
+            return inner
+        for rule in args[1:]:
+            if isinstance(rule, Range | Check) and (found := rule.problem(value)):
+                return found
+        return None
+    if hint is Any or isinstance(hint, typing.TypeVar):
+        return None
+    if hint is type(None):
+        return None if value is None else "null"
+    if origin in (typing.Union, types.UnionType):
+        results = [mismatch(value, a) for a in args]
+        return None if any(r is None for r in results) else _describe(hint)
+    if origin is Literal:
+        return None if value in args else _describe(hint)
+    if hint is bool:
+        return None if isinstance(value, bool) else _describe(hint)
+    if hint is int:
+        return None if isinstance(value, int) and not isinstance(value, bool) else _describe(hint)
+    if hint is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        return None if ok else _describe(hint)
+    if hint is str:
+        return None if isinstance(value, str) else _describe(hint)
+    if origin in (list, tuple, Sequence) or hint in (list, tuple):
+        if not isinstance(value, list | tuple):
+            return _describe(hint)
+        if origin is tuple and args and args[-1] is not Ellipsis and len(args) != len(value):
+            return f"a list of {len(args)} values"
+        item = args[0] if args else Any
+        bad = next((m for v in value if (m := mismatch(v, item))), None)
+        return f"a list of {bad.removeprefix('a ').removeprefix('an ')}s" if bad else None
+    if origin in (dict, Mapping) or hint is dict:
+        return None if isinstance(value, Mapping | DictConfig) else "a mapping"
+    return None  # objects the config builds (a representation, a callable): checked by their node
+
+
+def _hints(target: Any) -> dict[str, Any]:
+    function = target.__init__ if inspect.isclass(target) else target
+    try:
+        return typing.get_type_hints(function, include_extras=True)
+    except Exception:  # a third-party target whose annotations do not resolve: not ours to check
+        return {}
+
+
+def check_node(node: DictConfig, where: str) -> None:
+    """Check every value of a ``_target_`` node (and the nodes inside it) against its target."""
+    target = get_object(node["_target_"])
+    hints = _hints(target)
+    for key, value in node.items():
+        if str(key).startswith("_"):
+            continue
+        name = f"{where}.{key}"
+        if isinstance(value, DictConfig) and "_target_" in value:
+            check_node(value, name)
+        elif key in hints and (expected := mismatch(value, hints[key])):
+            raise ConfigError(f"{name}={_plain(value)!r}: expected {expected}")
+
+
+def check_config(cfg: DictConfig, *, entry: Mapping[str, Any]) -> None:
+    """The entry point's own keys against ``entry`` (key -> type), then the task's node."""
+    for key, hint in entry.items():
+        if expected := mismatch(cfg.get(key), hint):
+            raise ConfigError(f"{key}={_plain(cfg.get(key))!r}: expected {expected}")
+    check_node(cfg.task, "task")
