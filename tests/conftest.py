@@ -1,34 +1,20 @@
-"""Small clips shared by the tests."""
+"""Fixtures shared by the tests: small clips, and the app's config composed as edr-run would."""
 
 from __future__ import annotations
 
-import cv2
-import numpy as np
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
+from clips import translating_clip
 from edr.run import CONF_DIR
-
-
-def translating_clip(
-    frames: int = 5, height: int = 48, width: int = 64, dx: int = 2, dy: int = 0
-) -> torch.Tensor:
-    """(1, T, 3, H, W) uint8: a smooth random texture moving by (dx, dy) pixels per frame."""
-    rng = np.random.default_rng(0)
-    pad = 4 * max(abs(dx), abs(dy)) * frames + 8
-    big = rng.integers(0, 256, (height + 2 * pad, width + 2 * pad)).astype(np.uint8)
-    big = cv2.GaussianBlur(big, (0, 0), 2.5)
-    big = cv2.normalize(big, None, 0, 255, cv2.NORM_MINMAX)
-    # Content moving by +dx means frame t shows the texture shifted: crop starts at pad - t*dx.
-    clip = np.stack(
-        [
-            big[pad - t * dy : pad - t * dy + height, pad - t * dx : pad - t * dx + width]
-            for t in range(frames)
-        ]
-    )
-    return torch.from_numpy(np.repeat(clip[:, None], 3, axis=1)).unsqueeze(0)
 
 
 @pytest.fixture
@@ -41,15 +27,26 @@ def moving_left() -> torch.Tensor:
     return translating_clip(dx=-2)
 
 
-def ramp_clip(
-    values: list[float], height: int = 4, width: int = 5, channels: int = 1
-) -> torch.Tensor:
-    """(1, T, C, H, W) float32: every pixel takes ``values[t]`` at frame t."""
-    v = torch.tensor(values, dtype=torch.float32).view(1, -1, 1, 1, 1)
-    return v.expand(1, len(values), channels, height, width).contiguous()
-
-
-def compose_config(*overrides: str) -> DictConfig:
-    """The app's config with ``overrides``, composed as ``edr-run`` would (without Hydra's run)."""
+def _compose(*overrides: str) -> DictConfig:
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides))
+
+
+@pytest.fixture
+def compose_config() -> Callable[..., DictConfig]:
+    """``compose_config(*overrides)``: the app's config as ``edr-run`` composes it (no Hydra run)."""
+    return _compose
+
+
+def _cli(*args: str, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / args[0]
+    environ = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
+    return subprocess.run(
+        [str(exe), *args[1:]], cwd=cwd, capture_output=True, text=True, env=environ, timeout=600
+    )
+
+
+@pytest.fixture
+def cli() -> Callable[..., subprocess.CompletedProcess]:
+    """``cli("edr-run", *args, cwd=...)``: one of the installed commands, run to its end."""
+    return _cli

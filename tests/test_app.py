@@ -3,16 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
 import statistics
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from hydra.utils import instantiate
 
-from conftest import compose_config
 from edr import bench, tables
 from edr.representations import Representation
 from edr.run import CONF_DIR, run
@@ -21,7 +17,7 @@ REPRESENTATIONS = sorted(p.stem for p in (Path(CONF_DIR) / "representation").glo
 
 
 @pytest.mark.parametrize("name", REPRESENTATIONS)
-def test_every_representation_config_instantiates(name: str) -> None:
+def test_every_representation_config_instantiates(compose_config, name: str) -> None:
     cfg = compose_config(f"representation={name}", "out_dir=unused")
     if name == "brox":
         with pytest.raises(Exception, match="not yet available"):
@@ -32,7 +28,7 @@ def test_every_representation_config_instantiates(name: str) -> None:
     assert rep.out_channels(3) >= 1
 
 
-def test_demo_runs_and_writes_a_record(tmp_path) -> None:
+def test_demo_runs_and_writes_a_record(compose_config, tmp_path) -> None:
     cfg = compose_config("debug=tiny", f"out_dir={tmp_path}")
     assert cfg.threads == 1 and cfg.task.frames == 8
     metrics = run(cfg)
@@ -44,30 +40,24 @@ def test_demo_runs_and_writes_a_record(tmp_path) -> None:
     assert all(metrics[f"fps/{name}"] > 0 for name in cfg.task.representations)
 
 
-def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).parent / args[0]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.run(
-        [str(exe), *args[1:]], cwd=cwd, capture_output=True, text=True, env=env, timeout=600
-    )
-
-
 @pytest.mark.slow
-def test_multirun_sweep_writes_one_record_per_run(tmp_path) -> None:
-    result = _cli(
+def test_multirun_sweep_writes_one_record_per_run(cli, tmp_path) -> None:
+    result = cli(
         "edr-run", "-m", "debug=tiny", "seed=0,1", f"hydra.sweep.dir={tmp_path}/sweep", cwd=tmp_path
     )
     assert result.returncode == 0, result.stderr[-2000:]
     records = sorted((tmp_path / "sweep").glob("*/run.json"))
-    assert len(records) == 2
+    assert [r.parent.name for r in records] == ["debug=tiny,seed=0", "debug=tiny,seed=1"]
     seeds = {json.loads(r.read_text())["config"]["seed"] for r in records}
     assert seeds == {0, 1}
-    choices = json.loads(records[0].read_text())["choices"]
-    assert choices["task"] == "representation_demo" and choices["representation"] == "edr"
+    first, second = (json.loads(r.read_text()) for r in records)
+    assert first["choices"]["task"] == "representation_demo" and first["scale"] == "tiny"
+    assert first["cell"] == second["cell"] and first["fingerprint"] != second["fingerprint"]
+    assert "0 skipped, 0 resumed, 2 ran, 0 failed" in result.stdout + result.stderr
 
 
-def test_unknown_representation_is_a_clear_error(tmp_path) -> None:
-    result = _cli("edr-run", "representation=nope", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
+    result = cli("edr-run", "representation=nope", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     assert result.returncode != 0
     assert "nope" in result.stderr and "representation" in result.stderr
 

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import compose_config
+import edr.tasks.atari as atari
 from edr.rl.paac import PAACNetwork
 from edr.run import run
+from edr.tasks.atari import load_network
 
 
 @pytest.mark.parametrize("core", ["lstm", "ftlstm", "none"])
@@ -58,23 +59,41 @@ def test_ft_lstm_recurrence_stays_within_channels() -> None:
     assert net.cell.recurrent.shape == (4, 32, 81, 81)  # (gate, channel, location, location)
 
 
-def test_tiny_pong_run(tmp_path) -> None:
-    metrics = run(
-        compose_config(
-            "task=atari", "debug=tiny", "representation.color=gray", f"out_dir={tmp_path}"
-        )
-    )
+def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> None:
+    overrides = ("task=atari", "debug=tiny", "representation.color=gray")
+    real_targets, calls = atari.n_step_targets, {"n": 0}
+
+    def dies_after_update_60(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] > 60:  # the checkpoint of update 50 (1,000 frames) is on disk
+            raise KeyboardInterrupt("killed")
+        return real_targets(*args, **kwargs)
+
+    monkeypatch.setattr(atari, "n_step_targets", dies_after_update_60)
+    with pytest.raises(KeyboardInterrupt):
+        run(compose_config(*overrides, f"out_dir={tmp_path}"))
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1000
+    monkeypatch.setattr(atari, "n_step_targets", real_targets)
+    metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
+
     record = json.loads((tmp_path / "run.json").read_text())
-    assert record["metrics"]["train/frames"] == 2000
+    assert record["status"] == "finished" and record["resumed"] and record["metrics"] == metrics
+    assert (
+        record["data"]["source"] == "emulator" and "pong.bin md5" in record["data"]["fingerprint"]
+    )
+    assert metrics["train/frames"] == 2000
     for key in ("train/loss_objective", "train/loss_critic", "train/loss_entropy"):
         assert np.isfinite(metrics[key])
-    assert metrics["eval/plays"] == 2
+    assert (
+        metrics["eval/plays"] == 2 == len(json.loads((tmp_path / "eval_scores.json").read_text()))
+    )
     assert metrics["eval/min"] <= metrics["eval/mean"] <= metrics["eval/max"]
-    assert (tmp_path / "checkpoint.pt").is_file() and (tmp_path / "training_curve.png").is_file()
-    resumed = run(
-        compose_config(
-            "task=atari", "debug=tiny", "representation.color=gray", f"out_dir={tmp_path}",
-            "task.resume=true", "task.total_frames=2400",
-        )
-    )  # fmt: skip
-    assert resumed["train/frames"] == 2400  # went on from the checkpoint's 2,000
+    history = json.loads((tmp_path / "history.json").read_text())
+    assert [row["frames"] for row in history] == list(range(20, 2001, 20))  # none twice
+    steps = [
+        line.split(",")[0] for line in (tmp_path / "logs/scalars/train/fps.csv").read_text().split()
+    ]
+    assert steps == [str(f) for f in range(20, 2001, 20)]  # the log was rewound, not doubled
+    assert (tmp_path / "training_curve.png").is_file()
+    network = load_network(tmp_path)
+    assert sum(p.numel() for p in network.parameters()) > 0

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import ramp_clip, translating_clip
+from clips import ramp_clip, translating_clip
 from edr.representations import DVSCamera, DVSSimulator, events_to_frames
 from edr.representations.dvs import EVENT_DTYPE
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import ramp_clip
+from clips import ramp_clip
 from edr.representations import EDR
 from edr_reference import edr_reference
 

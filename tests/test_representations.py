@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import ramp_clip, translating_clip
+from clips import ramp_clip, translating_clip
 from edr.data import write_video
 from edr.representations import (
     EDR,

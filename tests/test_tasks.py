@@ -12,11 +12,11 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 import edr.tasks.recognition as recognition
-from conftest import compose_config
 from edr.data.events import write_aedat2
 from edr.data.synthetic import KTH_ACTIONS
 from edr.representations import DVSSimulator
 from edr.run import CONF_DIR, run
+from edr.tasks.recognition import load_model
 
 BACKBONES = sorted(p.stem for p in (Path(CONF_DIR) / "backbone").glob("*.yaml"))
 
@@ -27,31 +27,37 @@ def cache(tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize("backbone", BACKBONES)
-def test_every_backbone_config_builds(backbone: str) -> None:
+def test_every_backbone_config_builds(compose_config, backbone: str) -> None:
     cfg = compose_config(f"backbone={backbone}", "out_dir=unused")
     net = instantiate(cfg.backbone)(in_channels=2, num_classes=6, frames=8, height=32, width=32)
     assert net(torch.zeros(1, 8, 2, 32, 32)).shape == (1, 6)
 
 
-def test_kth_tiny_run_writes_record_checkpoint_and_figures(tmp_path, cache) -> None:
+def test_kth_tiny_run_writes_record_checkpoint_and_figures(compose_config, tmp_path, cache) -> None:
     metrics = run(
         compose_config("task=kth", "debug=tiny", f"out_dir={tmp_path}", f"task.cache_dir={cache}")
     )
     record = json.loads((tmp_path / "run.json").read_text())
-    assert record["metrics"]["eval/accuracy"] == metrics["eval/accuracy"]
-    assert metrics["data/synthetic"] is True and metrics["data/train_videos"] == 18
-    assert len(metrics["eval/confusion"]) == 6 and sum(map(sum, metrics["eval/confusion"])) == 6
+    assert record["status"] == "finished" and record["scale"] == "tiny"
+    assert record["metrics"] == metrics and record["metrics"]["train/epochs"] == 2
+    assert record["data"]["synthetic"] is True and record["data"]["train_videos"] == 18
+    assert record["data"]["fingerprint"].startswith("content:")
+    confusion = json.loads((tmp_path / "confusion.json").read_text())
+    assert confusion["classes"] == list(KTH_ACTIONS) and np.sum(confusion["matrix"]) == 6
     assert set(KTH_ACTIONS) == {
         k.split("/")[-1] for k in metrics if k.startswith("eval/per_class/")
     }
     assert 0.9 < metrics["sparsity/representation"] <= 1.0
-    assert [row["epoch"] for row in metrics["history"]] == [1, 2]
+    history = json.loads((tmp_path / "history.json").read_text())
+    assert [row["epoch"] for row in history] == [1, 2]
     for name in ("checkpoint.pt", "model.pt", "learning_curve.png", "confusion.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert (tmp_path / "logs").is_dir()  # torchrl's CSV logger
+    model = load_model(tmp_path)  # rebuilt from run.json's config and model.pt's state_dict
+    assert model(torch.zeros(1, 8, 1, 24, 24)).shape == (1, 6)
 
 
-def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(tmp_path, cache) -> None:
+def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(compose_config, tmp_path, cache) -> None:
     metrics = run(
         compose_config(
             "task=ucf101", "debug=tiny", "backbone=ltc", "representation=farneback",
@@ -64,10 +70,10 @@ def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(tmp_path, cache) -> None:
 
 
 def test_resume_after_an_interrupted_run_matches_an_uninterrupted_one(
-    tmp_path, cache, monkeypatch
+    compose_config, tmp_path, cache, monkeypatch
 ) -> None:
-    overrides = ("task=kth", "debug=tiny", f"task.cache_dir={cache}", "task.logger=")
-    whole = run(compose_config(*overrides, f"out_dir={tmp_path / 'whole'}"))
+    overrides = ("task=kth", "debug=tiny", f"task.cache_dir={cache}", "task.epochs=3")
+    run(compose_config(*overrides, f"out_dir={tmp_path / 'whole'}"))
 
     real_evaluate = recognition.evaluate
     calls = {"n": 0}
@@ -78,22 +84,27 @@ def test_resume_after_an_interrupted_run_matches_an_uninterrupted_one(
             raise KeyboardInterrupt("killed")
         return real_evaluate(*args, **kwargs)
 
+    killed = tmp_path / "killed"
     monkeypatch.setattr(recognition, "evaluate", dies_in_epoch_two)
     with pytest.raises(KeyboardInterrupt):
-        run(compose_config(*overrides, f"out_dir={tmp_path / 'killed'}"))
-    assert torch.load(tmp_path / "killed" / "checkpoint.pt", weights_only=False)["epoch"] == 1
-    assert not (tmp_path / "killed" / "run.json").exists()
+        run(compose_config(*overrides, f"out_dir={killed}"))
+    assert torch.load(killed / "checkpoint.pt", weights_only=True)["epoch"] == 1
+    record = json.loads((killed / "run.json").read_text())
+    assert record["status"] == "failed" and record["error"] == "interrupted"
     monkeypatch.setattr(recognition, "evaluate", real_evaluate)
-    resumed = run(compose_config(*overrides, f"out_dir={tmp_path / 'killed'}", "task.resume=true"))
+    run(compose_config(*overrides, f"out_dir={killed}", "resume=true"))
 
-    assert resumed["history"] == whole["history"]
-    a = torch.load(tmp_path / "whole" / "model.pt", weights_only=False).state_dict()
-    b = torch.load(tmp_path / "killed" / "model.pt", weights_only=False).state_dict()
+    record = json.loads((killed / "run.json").read_text())
+    assert record["status"] == "finished" and record["resumed"] and record["attempt"] == 2
+    for name in ("history.json", "logs/scalars/train/loss.csv", "logs/scalars/eval/accuracy.csv"):
+        assert (killed / name).read_text() == (tmp_path / "whole" / name).read_text(), name
+    a = torch.load(tmp_path / "whole" / "model.pt", weights_only=True)["state_dict"]
+    b = torch.load(killed / "model.pt", weights_only=True)["state_dict"]
     for key in a:
         torch.testing.assert_close(a[key], b[key])
 
 
-def test_dvs_transfer_with_simulated_events(tmp_path, cache) -> None:
+def test_dvs_transfer_with_simulated_events(compose_config, tmp_path, cache) -> None:
     metrics = run(
         compose_config(
             "task=dvs_transfer",
@@ -102,15 +113,17 @@ def test_dvs_transfer_with_simulated_events(tmp_path, cache) -> None:
             f"task.pretrain.cache_dir={cache}",
         )
     )
-    assert metrics["data/train_recordings"] + metrics["data/test_recordings"] == 18
-    assert metrics["data/train_recordings"] == 12  # 70 % of 3 per class, rounded per class
+    data = json.loads((tmp_path / "run.json").read_text())["data"]
+    assert data["train_recordings"] + data["test_recordings"] == 18
+    assert data["train_recordings"] == 12  # 70 % of 3 per class, rounded per class
     assert (
         0.0 <= metrics["eval/accuracy"] <= 1.0 and 0.0 <= metrics["eval/zero_shot_accuracy"] <= 1.0
     )
     assert (tmp_path / "pretrain" / "model.pt").is_file() and (tmp_path / "confusion.png").is_file()
+    assert json.loads((tmp_path / "run.json").read_text())["data"]["source"] == "generated"
 
 
-def test_dvs_transfer_reads_recordings_from_disk(tmp_path, cache) -> None:
+def test_dvs_transfer_reads_recordings_from_disk(compose_config, tmp_path, cache) -> None:
     recordings = tmp_path / "dvs"
     rng = np.random.default_rng(0)
     sim = DVSSimulator()
@@ -119,17 +132,18 @@ def test_dvs_transfer_reads_recordings_from_disk(tmp_path, cache) -> None:
         for i in range(2):
             frames = rng.uniform(20, 200, (6, 128, 128)).round()
             write_aedat2(recordings / action / f"user{i}.aedat", sim.simulate(frames))
-    metrics = run(
+    run(
         compose_config(
             "task=dvs_transfer", "debug=tiny", f"out_dir={tmp_path / 'run'}", f"task.pretrain.cache_dir={cache}",
             f"task.dvs_root={recordings}",
         )
     )  # fmt: skip
-    assert metrics["data/events"].startswith("recordings under")
-    assert metrics["data/train_recordings"] + metrics["data/test_recordings"] == 12
+    data = json.loads((tmp_path / "run" / "run.json").read_text())["data"]
+    assert data["events"].startswith("recordings under") and data["source"] == "mixed"
+    assert data["train_recordings"] + data["test_recordings"] == 12
 
 
-def test_dvs_transfer_refuses_a_multi_timescale_edr(tmp_path, cache) -> None:
+def test_dvs_transfer_refuses_a_multi_timescale_edr(compose_config, tmp_path, cache) -> None:
     with pytest.raises(ValueError, match="one ON/OFF pair"):
         run(
             compose_config(
@@ -139,7 +153,7 @@ def test_dvs_transfer_refuses_a_multi_timescale_edr(tmp_path, cache) -> None:
         )  # fmt: skip
 
 
-def test_experiment_configs_compose() -> None:
+def test_experiment_configs_compose(compose_config) -> None:
     cfg = compose_config("experiment=kth_demo", "out_dir=unused")
     assert cfg.task.crop == 32 and cfg.optimizer._target_ == "torch.optim.Adam"
     assert cfg.task.videos._target_.endswith("kth")

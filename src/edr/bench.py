@@ -26,8 +26,8 @@ import torch
 from tqdm import tqdm
 
 from edr.allocator import keep_freed_memory
-from edr.data import read_video, synthetic_scene
 from edr.atomic import write_json_atomic
+from edr.data import read_video, synthetic_scene
 from edr.records import git_revision, machine_info
 from edr.representations import (
     EDR,

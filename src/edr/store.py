@@ -41,9 +41,7 @@ class Plan:
     record: dict[str, Any] | None  # the record found there, if any
 
 
-def plan_attempt(
-    out_dir: Path, fingerprint: str, semantic: dict[str, Any], resume: Resume
-) -> Plan:
+def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resume: Resume) -> Plan:
     """Decide from ``out_dir``'s record and checkpoint; ``resume=False`` always starts over,
     ``True`` requires something to continue, ``auto`` takes what is there."""
     record_path, checkpoint = out_dir / RECORD_NAME, out_dir / CHECKPOINT
@@ -77,7 +75,13 @@ def plan_attempt(
 def log_attempt(out_dir: Path, outcome: str, fingerprint: str, **details: Any) -> None:
     """Append one line (time, outcome, fingerprint, details) to ``out_dir/attempts.jsonl``."""
     line = json.dumps(
-        {"at": now(), "unix": time.time(), "outcome": outcome, "fingerprint": fingerprint, **details}
+        {
+            "at": now(),
+            "unix": time.time(),
+            "outcome": outcome,
+            "fingerprint": fingerprint,
+            **details,
+        }
     )
     with open(out_dir / ATTEMPTS, "a") as f:
         f.write(line + "\n")
@@ -103,6 +107,4 @@ class SweepSummary(Callback):
         sweep_dir = Path(config.hydra.sweep.dir)
         counts = outcomes_since(sweep_dir, getattr(self, "started", 0.0))
         order = ("skipped", "resumed", "ran", "failed", "interrupted")
-        log.info(
-            "sweep %s: %s", sweep_dir, ", ".join(f"{counts.get(k, 0)} {k}" for k in order)
-        )
+        log.info("sweep %s: %s", sweep_dir, ", ".join(f"{counts.get(k, 0)} {k}" for k in order))

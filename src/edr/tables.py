@@ -91,7 +91,7 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
 
 
 def write_speed_table(record: dict[str, Any], path: Path, source: str = "") -> Path:
-    return write_text_atomic(speed_table(record, source), path)
+    return write_text_atomic(path, speed_table(record, source))
 
 
 def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
@@ -133,7 +133,7 @@ def write_atari_cost_table(bench_dir: Path, path: Path) -> Path | None:
     found = sorted(bench_dir.glob("atari_*.json"), key=lambda p: p.stat().st_mtime)
     if not found:
         return None
-    return write_text_atomic(atari_cost_table([(p, read_record(p)) for p in found]), path)
+    return write_text_atomic(path, atari_cost_table([(p, read_record(p)) for p in found]))
 
 
 def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) -> str:
@@ -144,7 +144,7 @@ def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) ->
         key = (
             choice.get("representation", "?"),
             choice.get("backbone", "?"),
-            record["metrics"]["data/synthetic"],
+            record["data"]["synthetic"],
         )
         groups.setdefault(key, []).append((path, record))
     lines = [
@@ -159,12 +159,13 @@ def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) ->
     ]
     for (rep, backbone, synthetic), runs in sorted(groups.items()):
         metrics = [r["metrics"] for _, r in runs]
+        data = runs[0][1]["data"]
         accuracy = 100 * sum(m["eval/accuracy"] for m in metrics) / len(metrics)
         published = PUBLISHED_KTH.get((rep, backbone)) if not synthetic else None
         machine = runs[0][1]["machine"]
         lines.append(
             f"| {rep} | {backbone} | {'generated (synthetic)' if synthetic else 'real'} | "
-            f"{metrics[0]['data/train_videos']}/{metrics[0]['data/test_videos']} | {len(runs)} | {accuracy:.1f} | "
+            f"{data['train_videos']}/{data['test_videos']} | {len(runs)} | {accuracy:.1f} | "
             f"{100 * metrics[0]['eval/chance']:.1f} | {published if published else '—'} | "
             f"{machine['cpu']}, GPU: {machine.get('gpu') or 'none'} |"
         )
@@ -173,11 +174,11 @@ def recognition_table(records: list[tuple[Path, dict[str, Any]]], title: str) ->
 
 
 def task_records(root: Path, task: str) -> list[tuple[Path, dict[str, Any]]]:
-    """Every run record under ``root`` (runs and sweeps) of ``task``, oldest first."""
+    """Every finished run record under ``root`` (runs and sweeps) of ``task``, oldest first."""
     found = [
         (p, read_record(p)) for p in sorted(root.rglob("run.json"), key=lambda p: p.stat().st_mtime)
     ]
-    return [(p, r) for p, r in found if r.get("task") == task]
+    return [(p, r) for p, r in found if r.get("task") == task and r.get("status") == "finished"]
 
 
 def newest(pattern: str, root: Path) -> Path | None:
@@ -201,7 +202,7 @@ def main(argv: list[str] | None = None) -> None:
         text = recognition_table(records, f"Table 4 style: KTH runs under {args.runs}")
         print(text)
         if args.out:
-            print(f"wrote {write_text_atomic(text, args.out)}")
+            print(f"wrote {write_text_atomic(args.out, text)}")
         return
     written = []
     speed = newest("bench/speed_*.json", args.results)
@@ -217,7 +218,7 @@ def main(argv: list[str] | None = None) -> None:
     kth_runs = task_records(args.results, "kth")
     if kth_runs:
         text = recognition_table(kth_runs, "Table 4: KTH, ours beside the paper's")
-        written.append(write_text_atomic(text, args.paper / "table4_kth.md"))
+        written.append(write_text_atomic(args.paper / "table4_kth.md", text))
     for path in written:
         print(f"wrote {path}")
 

@@ -79,6 +79,8 @@ def _plain(value: Any) -> Any:
 
 def _describe(hint: Any) -> str:
     origin = typing.get_origin(hint)
+    if origin is Annotated:
+        return _describe(typing.get_args(hint)[0])
     if hint is type(None):
         return "null"
     if origin is Literal:
@@ -108,8 +110,8 @@ def mismatch(value: Any, hint: Any) -> str | None:
     if hint is type(None):
         return None if value is None else "null"
     if origin in (typing.Union, types.UnionType):
-        results = [mismatch(value, a) for a in args]
-        return None if any(r is None for r in results) else _describe(hint)
+        results = [mismatch(value, a) for a in args if value is None or a is not type(None)]
+        return None if any(r is None for r in results) else " or ".join(dict.fromkeys(results))
     if origin is Literal:
         return None if value in args else _describe(hint)
     if hint is bool:

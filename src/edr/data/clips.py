@@ -41,7 +41,9 @@ class ArrayCache:
     def _file(self, path: Path) -> Path:
         stat = Path(path).stat()
         identity = f"{Path(path).resolve()}|{stat.st_size}|{stat.st_mtime_ns}"
-        return self.dir / f"{Path(path).stem}_{hashlib.sha1(identity.encode()).hexdigest()[:12]}.npy"
+        return (
+            self.dir / f"{Path(path).stem}_{hashlib.sha1(identity.encode()).hexdigest()[:12]}.npy"
+        )
 
     def get(self, path: Path, compute: Callable[[Path], np.ndarray]) -> np.ndarray:
         if path in self._memory:

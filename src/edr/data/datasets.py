@@ -28,7 +28,7 @@ import numpy as np
 from edr.data.fingerprint import files_fingerprint
 from edr.data.synthetic import KTH_ACTIONS
 from edr.identity import digest
-from edr.validate import ConfigError
+from edr.validate import ConfigError, Fraction
 
 UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
@@ -72,7 +72,7 @@ def _missing(root: Path, what: str, layout: str) -> DataLayoutError:
     return DataLayoutError(f"{what} not found under {root}; expected the layout {layout}")
 
 
-def ucf101(root: str | Path, *, split: int = 1, train: bool = True) -> VideoSet:
+def ucf101(root: str | Path, *, split: Literal[1, 2, 3] = 1, train: bool = True) -> VideoSet:
     """The train or test videos of official split 1, 2 or 3."""
     root = Path(root)
     if split not in (1, 2, 3):
@@ -123,7 +123,7 @@ def kth(
     *,
     train: bool = True,
     protocol: Literal["random", "person"] = "random",
-    train_fraction: float = 0.75,
+    train_fraction: Fraction = 0.75,
     seed: int = 0,
 ) -> VideoSet:
     """KTH's videos; ``protocol="random"``: the paper's seeded 75/25 random split of the videos,
@@ -177,7 +177,11 @@ def resolve_root(
 def videos_fingerprint(root: Path, splits: dict[str, VideoSet]) -> str:
     """The content fingerprint of every video of ``splits``, with its split and label."""
     members = [
-        (name, str(v.path.relative_to(root)) if v.path.is_relative_to(root) else v.path.name, v.label)
+        (
+            name,
+            str(v.path.relative_to(root)) if v.path.is_relative_to(root) else v.path.name,
+            v.label,
+        )
         for name, split in splits.items()
         for v in split.videos
     ]

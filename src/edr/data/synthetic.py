@@ -10,6 +10,7 @@ import torch
 
 from edr.atomic import publish_dir
 from edr.data.video import write_video
+from edr.validate import PositiveInt
 
 
 def _texture(rng: np.random.Generator, height: int, width: int, blur: float) -> np.ndarray:
@@ -130,11 +131,11 @@ def action_video(
 def write_synthetic_kth(
     root: str | Path,
     *,
-    persons: int = 25,
-    scenarios: int = 4,
-    frames: int = 90,
-    height: int = 120,
-    width: int = 160,
+    persons: PositiveInt = 25,
+    scenarios: PositiveInt = 4,
+    frames: PositiveInt = 90,
+    height: PositiveInt = 120,
+    width: PositiveInt = 160,
     seed: int = 0,
 ) -> Path:
     """Generate the six KTH actions in KTH's layout: ``root/<action>/personXX_<action>_dY_uncomp.avi``.
@@ -157,11 +158,11 @@ def write_synthetic_kth(
 def write_synthetic_ucf101(
     root: str | Path,
     *,
-    groups: int = 25,
-    clips: int = 2,
-    frames: int = 60,
-    height: int = 240,
-    width: int = 320,
+    groups: PositiveInt = 25,
+    clips: PositiveInt = 2,
+    frames: PositiveInt = 60,
+    height: PositiveInt = 240,
+    width: PositiveInt = 320,
     seed: int = 0,
 ) -> Path:
     """Generate six motion classes in UCF-101's layout, with its three official splits.

@@ -69,7 +69,9 @@ def rom_fingerprint(game: str) -> str:
     path = ale_py.roms.get_rom_path(rom_id)
     if path is None:
         raise ValueError(f"ale-py {ale_py.__version__} has no ROM for the game {game!r}")
-    return f"ale-py {ale_py.__version__}, {path.name} md5 {hashlib.md5(path.read_bytes()).hexdigest()}"
+    return (
+        f"ale-py {ale_py.__version__}, {path.name} md5 {hashlib.md5(path.read_bytes()).hexdigest()}"
+    )
 
 
 def _torchrl_atari(game: str, preset: Preset, train: bool) -> GymWrapper:

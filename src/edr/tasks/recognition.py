@@ -207,7 +207,11 @@ def fit_recognition(
         "width": crop,
     }
     save_atomic(
-        {"state_dict": model.state_dict(), "online": online is not None, "backbone_args": backbone_args},
+        {
+            "state_dict": model.state_dict(),
+            "online": online is not None,
+            "backbone_args": backbone_args,
+        },
         out_dir / MODEL,
     )
     write_json_atomic(out_dir / HISTORY, history)

@@ -1,0 +1,144 @@
+"""The results store: run identity, folder names, config checks before any work, the plan a run
+makes in its folder, atomic files, and caches keyed by content and safe to fill at once."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from functools import partial
+
+import numpy as np
+import pytest
+
+import edr.validate
+from edr.atomic import atomic_path, publish_dir
+from edr.data.clips import VideoSource
+from edr.data.datasets import DataLayoutError, resolve_root
+from edr.data.synthetic import action_video, write_synthetic_kth
+from edr.data.video import write_video
+from edr.identity import job_dirname, run_identity
+from edr.run import run
+from edr.validate import ConfigError
+
+TINY_KTH = ("task=kth", "debug=tiny")
+
+
+def test_fingerprint_ignores_where_and_how_and_the_cell_ignores_the_seed(compose_config) -> None:
+    _, base, cell = run_identity(compose_config(*TINY_KTH, "out_dir=a"))
+    same = compose_config(
+        *TINY_KTH, "out_dir=b", "threads=2", "task.logger=", "resume=false", "task.cache_dir=/c"
+    )
+    assert run_identity(same)[1] == base
+    assert run_identity(compose_config(*TINY_KTH, "out_dir=a", "task.epochs=3"))[1] != base
+    seeded = compose_config(*TINY_KTH, "out_dir=a", "seed=1")  # also the split's ${seed}
+    semantic, fingerprint, seeded_cell = run_identity(seeded)
+    assert semantic["task"]["videos"]["seed"] == 1
+    assert fingerprint != base and seeded_cell == cell
+
+
+def test_job_folder_names_come_from_semantic_overrides() -> None:
+    name = job_dirname(["seed=1", "task=kth", "threads=2", "resume=true", "task.logger=", "+x.y=1"])
+    assert name == "seed=1,task=kth,x.y=1"
+    assert job_dirname(["task.data_root=/data/KTH", "paths.cache=/s"]) == "task.data_root=_data_KTH"
+    assert job_dirname([]) == "defaults"
+    long = job_dirname([f"task.k{i}={'v' * 20}" for i in range(10)])
+    assert len(long) == 120 and long != job_dirname([f"task.k{i}={'w' * 20}" for i in range(10)])
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("task.epochs=abc", "task.epochs='abc': expected an integer"),
+        ("task.epochs=-1", "task.epochs=-1: expected a number >= 1"),
+        ("task.batch_size=0", "task.batch_size=0: expected a number >= 1"),
+        ("task.resize=[40,30,1]", "task.resize=[40, 30, 1]: expected a list of 2 values"),
+        (
+            "task.videos.train_fraction=1.5",
+            "task.videos.train_fraction=1.5: expected a number <= 1",
+        ),
+        ("task.logger=nope", "task.logger='nope': expected one of csv, tensorboard"),
+        ("threads=0", "threads=0: expected a number >= 1"),
+        ("resume=maybe", "resume='maybe': expected one of 'auto', True, False"),
+    ],
+)
+def test_bad_settings_fail_before_any_work(compose_config, tmp_path, override, message) -> None:
+    cache = tmp_path / "cache"
+    cfg = compose_config(
+        *TINY_KTH, f"out_dir={tmp_path / 'run'}", f"task.cache_dir={cache}", override
+    )
+    with pytest.raises(ConfigError) as error:
+        run(cfg)
+    assert str(error.value).startswith(message) and "\n" not in str(error.value)
+    assert not cache.exists() and not (tmp_path / "run").exists()  # nothing decoded or written
+
+
+def test_a_missing_logger_package_fails_before_any_work(
+    compose_config, tmp_path, monkeypatch
+) -> None:
+    monkeypatch.setitem(edr.validate.LOGGER_PACKAGES, "wandb", "edr_no_such_package")
+    cfg = compose_config(*TINY_KTH, f"out_dir={tmp_path}", "task.logger=wandb")
+    with pytest.raises(ConfigError, match=r"task.logger='wandb': expected the edr_no_such_package"):
+        run(cfg)
+
+
+def test_a_missing_data_root_names_the_layout_before_decoding(compose_config, tmp_path) -> None:
+    cfg = compose_config(
+        *TINY_KTH, f"out_dir={tmp_path / 'run'}", f"task.cache_dir={tmp_path / 'cache'}",
+        f"task.data_root={tmp_path / 'KTH'}",
+    )  # fmt: skip
+    with pytest.raises(DataLayoutError, match=r"personXX_<action>_dY_uncomp\.avi"):
+        run(cfg)
+    assert not (tmp_path / "cache").exists()
+
+
+def test_a_folder_refuses_another_config_and_names_the_keys(compose_config, tmp_path) -> None:
+    common = (*TINY_KTH, f"out_dir={tmp_path}", f"task.cache_dir={tmp_path / 'cache'}")
+    run(compose_config(*common, "task.epochs=1", "task.logger="))
+    record = (tmp_path / "run.json").stat().st_mtime_ns
+    assert run(compose_config(*common, "task.epochs=1")) is not None  # the logger is not semantic
+    assert (tmp_path / "run.json").stat().st_mtime_ns == record  # skipped: not rewritten
+    with pytest.raises(ConfigError, match=r"another config \(task\.epochs: 1 -> 2\)"):
+        run(compose_config(*common, "task.epochs=2"))
+    with pytest.raises(ConfigError, match="no checkpoint to resume"):
+        run(compose_config(*common, "task.epochs=1", f"out_dir={tmp_path / 'typo'}", "resume=true"))
+
+
+def test_atomic_path_leaves_nothing_behind_on_failure(tmp_path) -> None:
+    target = tmp_path / "table.md"
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("killed")
+    assert list(tmp_path.iterdir()) == []
+
+
+def _fill(cache: str, _: int) -> list[float]:
+    """One process's first run: generate the data set, decode every video into the cache."""
+    root = resolve_root(None, partial(write_synthetic_kth, persons=4, scenarios=1, frames=6), cache)
+    source = VideoSource(cache, size=(40, 30), gray=True)
+    paths = sorted(root.rglob("*.avi"))
+    source.cache.fill(paths, source.decode, desc="decoding")
+    return [float(np.asarray(source(p)).mean()) for p in paths]
+
+
+def test_two_processes_fill_the_same_empty_cache(tmp_path) -> None:
+    with multiprocessing.get_context("spawn").Pool(2) as pool:
+        first, second = pool.map(partial(_fill, str(tmp_path)), [0, 1])
+    assert first == second and len(first) == 24
+    assert not [p for p in tmp_path.rglob("*") if "partial" in p.name]
+    assert len([p for p in tmp_path.iterdir() if p.name.startswith("write_synthetic_kth")]) == 1
+
+
+def test_publish_dir_keeps_the_first_copy(tmp_path) -> None:
+    root = publish_dir(tmp_path / "set", lambda d: (d / "a").write_text("1"))
+    publish_dir(root, lambda d: (d / "a").write_text("2"))
+    assert (root / "a").read_text() == "1" and [p.name for p in tmp_path.iterdir()] == ["set"]
+
+
+def test_a_replaced_video_is_decoded_again(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    video = write_video(tmp_path / "v.avi", action_video("boxing", rng, 4, 48, 64))
+    before = np.array(VideoSource(tmp_path / "cache", size=(32, 24), gray=True)(video))
+    write_video(video, np.full((4, 48, 64), 200, np.uint8))
+    os.utime(video, ns=(1, 1))  # even a copy that kept an old mtime has another size
+    after = np.array(VideoSource(tmp_path / "cache", size=(32, 24), gray=True)(video))
+    assert not np.array_equal(before, after) and after.mean() > 190
