@@ -11,6 +11,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
+import edr.tasks.dvs_transfer as dvs_transfer
 import edr.tasks.recognition as recognition
 from edr.data.events import write_aedat2
 from edr.data.synthetic import KTH_ACTIONS
@@ -184,3 +185,25 @@ def test_every_cell_of_a_paper_sweep_composes(experiment: str) -> None:
                     frames=8, height=cfg.task.crop, width=cfg.task.crop,
                 )  # fmt: skip
                 assert sum(p.numel() for p in net.parameters()) > 0
+
+
+def test_dvs_transfer_resumes_without_training_its_network_again(
+    compose_config, tmp_path, cache, monkeypatch
+) -> None:
+    overrides = ("task=dvs_transfer", "debug=tiny", f"out_dir={tmp_path}",
+                 f"task.pretrain.cache_dir={cache}")  # fmt: skip
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt("killed after pre-training")
+
+    monkeypatch.setattr(dvs_transfer, "_predict", killed)
+    with pytest.raises(KeyboardInterrupt):
+        run(compose_config(*overrides))
+    pretrained = (tmp_path / "pretrain" / "checkpoint.pt").stat().st_mtime_ns
+    monkeypatch.undo()
+    run(compose_config(*overrides))
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["status"] == "finished" and record["resumed"]
+    assert (tmp_path / "pretrain" / "checkpoint.pt").stat().st_mtime_ns == pretrained  # no epoch
+    losses = (tmp_path / "pretrain/logs/scalars/train/loss.csv").read_text().split()
+    assert [line.split(",")[0] for line in losses] == ["1"]

@@ -44,8 +44,10 @@ class Plan:
 def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resume: Resume) -> Plan:
     """Decide from ``out_dir``'s record and checkpoint; ``resume=False`` always starts over,
     ``True`` requires something to continue, ``auto`` takes what is there."""
-    record_path, checkpoint = out_dir / RECORD_NAME, out_dir / CHECKPOINT
+    record_path = out_dir / RECORD_NAME
     record = read_record(record_path) if record_path.is_file() else None
+    # A task may checkpoint a stage in a subfolder (DVS transfer: pretrain/checkpoint.pt).
+    checkpoint = next(out_dir.rglob(CHECKPOINT), None) if out_dir.is_dir() else None
     if resume is False:
         return Plan("run", record)
     if record is not None and record.get("fingerprint") != fingerprint:
@@ -57,7 +59,7 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
         )
     if record is not None and record.get("status") == "finished":
         return Plan("skip", record)
-    if checkpoint.is_file():
+    if checkpoint is not None:
         if record is None:
             raise ConfigError(
                 f"{checkpoint} has no run.json beside it, so its config cannot be checked: "

@@ -103,7 +103,7 @@ def fit_recognition(
 ) -> Fitted:
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
     model and the metrics, and writes the history, confusion matrix, figures and model."""
-    # ---- data, checkpoint, logger ----------------------------------------------------------------
+    # ---- data, checkpoint, logger ------------------------------------------------------------
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     dev = torch.device(device)
@@ -133,7 +133,7 @@ def fit_recognition(
         test_videos, source, frames=frames, crop=crop, train=False, negate=negate
     )
 
-    # ---- model, optimizer ------------------------------------------------------------------------
+    # ---- model, optimizer --------------------------------------------------------------------
     in_channels = representation.out_channels(frame_source.channels)
     net = backbone(
         in_channels=in_channels,
