@@ -6,8 +6,9 @@
     edr-bench --atari 16            # instead: Atari env steps/s with and without EDR
 
 Median throughput over ``--repeats`` timed calls after a warm-up call (which also compiles the
-numba kernels). Writes ``results/bench/speed_<host>_<time>.json`` and ``paper/table2_speed.md``;
-with ``--atari``, ``results/bench/atari_<host>_<time>.json`` and ``paper/atari_edr_cost.md``.
+numba kernels). Writes a record only, ``results/bench/speed_<host>_<time>.json`` (with
+``--atari``, ``results/bench/atari_<host>_<time>.json``), and prints its table; ``edr-tables``
+renders ``paper/table2_speed.md`` and ``paper/atari_edr_cost.md`` from the records.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from edr.representations import (
     decode_motion_vectors,
 )
 from edr.representations.mpeg_flow import encode_clip
-from edr.tables import write_atari_cost_table, write_speed_table
+from edr.tables import atari_cost_table, speed_table
 
 K3 = (1.0, 3.8, 8.0)
 
@@ -244,10 +245,6 @@ def main(argv: list[str] | None = None) -> None:
         help="the observation stack's dtype, float16 as task=atari trains (--atari)",
     )
     parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
-    parser.add_argument("--table", type=Path, default=Path("paper/table2_speed.md"))
-    parser.add_argument(
-        "--atari-table", type=Path, default=Path("paper/atari_edr_cost.md"), help="(--atari)"
-    )
     args = parser.parse_args(argv)
     repeats = 2 if args.quick else args.repeats
     allocator = "glibc default" if args.system_malloc else "glibc, freed memory kept"
@@ -274,7 +271,7 @@ def main(argv: list[str] | None = None) -> None:
                   "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
                   "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
         path = write_json_atomic(args.out_dir / f"atari_{machine['hostname']}_{stamp}.json", record)
-        table = write_atari_cost_table(args.out_dir, args.atari_table)
+        print(atari_cost_table([(path, record)]))
         for r, cpu in zip(result.rows, result.main_cpu_ms, strict=True):
             print(
                 f"{r.name:40s} {r.fps:8.1f} env steps/s ({4 * r.fps:.0f} emulator frames/s), "
@@ -283,7 +280,7 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"EDR costs {result.cost:.1f} % of throughput (median of {repeats} paired rollouts; "
             f"pairs from {min(result.costs):.1f} to {max(result.costs):.1f} %)\n"
-            f"record: {path}\ntable:  {table}"
+            f"record: {path} (edr-tables renders paper/atari_edr_cost.md from the records)"
         )
         return
 
@@ -333,9 +330,8 @@ def main(argv: list[str] | None = None) -> None:
         "rows": [asdict(r) for r in rows],
     }
     path = write_json_atomic(args.out_dir / f"speed_{machine['hostname']}_{stamp}.json", record)
-    table = write_speed_table(record, args.table)
-    print(table.read_text())
-    print(f"record: {path}\ntable:  {table}")
+    print(speed_table(record, str(path)))
+    print(f"record: {path} (edr-tables renders paper/table2_speed.md from the latest record)")
 
 
 if __name__ == "__main__":

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -18,6 +20,18 @@ from torch import nn
 GRAY_WEIGHTS = (0.299, 0.587, 0.114)
 
 
+@dataclass(frozen=True)
+class Features:
+    """What a representation does, the properties the paper's Figure 2b compares."""
+
+    temporal_receptive_field: str  # the frames an output depends on
+    smoothing: str  # what filters noise, or "no"
+    thresholding: str  # whether small changes give exactly zero (sparse output)
+    on_off: str  # separate channels for increases and decreases
+    direction: str  # whether it says which way things move
+    learnable: str  # whether its parameters can train with the network
+
+
 class Representation(nn.Module):
     """Base class: clip in, channels out. Subclasses implement ``forward`` and the two sizes."""
 
@@ -25,6 +39,7 @@ class Representation(nn.Module):
     precompute: bool = False
     # Output channels that change sign when the clip is mirrored left-right (a flow's dx).
     hflip_negate: tuple[int, ...] = ()
+    features: ClassVar[Features]  # declared by every representation (Figure 2b's table)
 
     def cache_key(self) -> str:
         """A stable digest of the class, its settings and its tensors, to key cached outputs."""
@@ -59,6 +74,7 @@ class FlowRepresentation(Representation):
 
     precompute = True
     hflip_negate = (0,)
+    features = Features("2 frames", "spatial (the flow's regulariser)", "no", "no", "yes", "no")
 
     def out_channels(self, in_channels: int) -> int:
         return 2

@@ -18,7 +18,13 @@ import numpy as np
 import torch
 from numba import njit
 
-from edr.representations.base import Representation, check_clip, on_off_picture, to_gray
+from edr.representations.base import (
+    Features,
+    Representation,
+    check_clip,
+    on_off_picture,
+    to_gray,
+)
 
 EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
@@ -185,6 +191,11 @@ class DVSCamera(Representation):
     One frame per interval between two video frames; the channel order matches EDR's so a
     network trained on EDR can take event-camera input directly (the paper's Appendix A).
     """
+
+    features = Features(
+        "every past frame (a per-pixel reference)", "no", "yes (contrast threshold)",
+        "yes", "no", "no",
+    )  # fmt: skip
 
     precompute = True
 

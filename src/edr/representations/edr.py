@@ -26,6 +26,7 @@ from torch import nn
 
 from edr.representations import kernels
 from edr.representations.base import (
+    Features,
     Representation,
     check_clip,
     check_frame,
@@ -58,6 +59,11 @@ class EDR(Representation):
     else C, K' = 1 if ``combine="sum"`` else K. ``step``: the same, one frame at a time.
     Under ``torch.no_grad()`` on the CPU (uint8 or float32 input) both use a fused numba kernel.
     """
+
+    features = Features(
+        "every past frame, weighted by half-lives tau_k", "yes (EMA per timescale)",
+        "yes (nu_on, nu_off; soft or hard)", "yes", "no", "optional (learnable=true)",
+    )  # fmt: skip
 
     def __init__(
         self,

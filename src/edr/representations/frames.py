@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from edr.representations import kernels
-from edr.representations.base import Representation, check_clip, to_float, to_gray
+from edr.representations.base import Features, Representation, check_clip, to_float, to_gray
 
 
 class FDR(Representation):
@@ -16,6 +16,8 @@ class FDR(Representation):
 
     (B, T, C, H, W) -> (B, T, C', H, W), C' = 1 if ``color="gray"`` else C.
     """
+
+    features = Features("1 frame", "no", "no", "no", "no", "no")
 
     def __init__(self, color: Literal["keep", "gray"] = "keep", scale: float = 1 / 255) -> None:
         super().__init__()
@@ -43,6 +45,8 @@ class GrayDiff(Representation):
     ``scale`` maps the 0..255 range of uint8 video to -1..1. Under ``torch.no_grad()`` on the
     CPU (uint8 or float32) it runs a fused numba kernel, as fast as EDR's, for a fair race.
     """
+
+    features = Features("2 frames", "no", "no", "no (one signed channel)", "no", "no")
 
     def __init__(self, scale: float = 1 / 255, fast: bool = True) -> None:
         super().__init__()
@@ -73,6 +77,8 @@ class GrayDiff(Representation):
 
 class RGBDiff(Representation):
     """Differences of consecutive frames per colour channel: -> (B, T-1, C, H, W)."""
+
+    features = Features("2 frames", "no", "no", "no (signed channels)", "no", "no")
 
     def __init__(self, scale: float = 1 / 255) -> None:
         super().__init__()

@@ -14,7 +14,7 @@ import av
 import numpy as np
 import torch
 
-from edr.representations.base import FlowRepresentation, check_clip, to_float
+from edr.representations.base import Features, FlowRepresentation, check_clip, to_float
 
 
 def rasterize_motion_vectors(mvs: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -78,6 +78,10 @@ class MPEGFlow(FlowRepresentation):
     vectors; for video already on disk, ``decode_motion_vectors(path)`` reads the vectors the
     file was stored with, which is what the paper timed.
     """
+
+    features = Features(
+        "2 frames (the codec's reference)", "no", "no", "no", "yes (block motion vectors)", "no"
+    )
 
     def __init__(self, codec: str = "mpeg4") -> None:
         super().__init__()

@@ -50,6 +50,7 @@ from edr.validate import (
     PositiveInt,
 )
 
+INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1 names them
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # one row per update: env steps, losses, fps, mean training score
 SCORES = "eval_scores.json"  # the raw score of every evaluation game
@@ -117,7 +118,8 @@ def train_paac(
     preset: Preset = "paac",
     num_envs: PositiveInt = 32,
     env_mode: Literal["parallel", "serial", "single"] = "parallel",
-    fdr: Literal["rgb", "gray", "none"] = "rgb",
+    input: Literal["fdr", "fdr_edr", "edr"] = "fdr_edr",
+    fdr: Literal["rgb", "gray"] = "rgb",
     edr: EDR | None = None,
     frame_stack: PositiveInt = 4,
     obs_dtype: Literal["float16", "float32"] = "float16",
@@ -138,13 +140,19 @@ def train_paac(
     resume: bool = False,
     logger: LoggerName = "csv",
 ) -> dict[str, Any]:
-    """Train PAAC on ``game``, then score ``eval_plays`` games; returns metrics."""
+    """Train PAAC on ``game``, then score ``eval_plays`` games; returns metrics.
+
+    ``input``: the frames (``fdr``, in the colour ``fdr`` names), the frames and the ``edr``
+    layer's events (``fdr_edr``), or the events alone (``edr``).
+    """
+    if input != "fdr" and edr is None:
+        raise ValueError(f"input={input!r} needs an EDR layer (task.edr), which is null")
     # ---- envs, network, loss, optimizer ------------------------------------------------------
     env_kwargs = {
         "game": game,
         "preset": preset,
-        "fdr": fdr,
-        "edr": edr,
+        "fdr": fdr if input != "edr" else "none",
+        "edr": edr if input != "fdr" else None,
         "frame_stack": frame_stack,
         "obs_dtype": obs_dtype,
     }
@@ -246,9 +254,7 @@ def train_paac(
     save_atomic({"state_dict": network.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     write_json_atomic(out_dir / HISTORY, history)
     write_json_atomic(out_dir / SCORES, scores)
-    save_score_curve(
-        history, out_dir / "training_curve.png", title=f"{game}, {'FDR+EDR' if edr else 'FDR'}"
-    )
+    save_score_curve(history, out_dir / "training_curve.png", title=f"{game}, {INPUT_NAMES[input]}")
     scored = [row for row in history if "train/score" in row]
     return {
         "data/source": "emulator",

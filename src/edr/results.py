@@ -1,0 +1,107 @@
+"""Every run record under one or more folders, as a pandas DataFrame, and its cells.
+
+One row per record. Columns: ``record`` (path), ``run_dir``, ``task``, ``status``, ``error``,
+``fingerprint``, ``cell``, ``seed``, ``scale``, ``git``, ``machine`` (CPU, cores, GPU in one
+string), ``data.<key>`` (source, fingerprint, ...), ``choices.<group>``, ``config.<dotted.key>``
+and ``metrics.<name>``.
+
+A table cell aggregates only finished runs that share everything but the seed: the same
+``cell`` fingerprint, data fingerprint, data source and scale. Failed, running and pre-store
+records are listed, never averaged.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from edr.identity import flatten
+from edr.records import RECORD_NAME
+
+# What must match for runs to be averaged into one number.
+CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]
+
+
+def _machine(record: dict[str, Any]) -> str:
+    m = record.get("machine", {})
+    return f"{m.get('cpu', '?')} ({m.get('cpu_count', '?')} cores), GPU: {m.get('gpu') or 'none'}"
+
+
+def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:
+    row: dict[str, Any] = {
+        "record": str(path),
+        "run_dir": str(path.parent),
+        "task": record.get("task"),
+        "status": record.get("status", "legacy"),  # records from before the results store
+        "error": record.get("error"),
+        "fingerprint": record.get("fingerprint"),
+        "cell": record.get("cell"),
+        "seed": record.get("seed", record.get("config", {}).get("seed")),
+        "scale": record.get("scale"),
+        "git": record.get("git"),
+        "machine": _machine(record),
+        "ended_at": record.get("ended_at"),
+    }
+    for section in ("data", "choices", "metrics"):
+        row.update({f"{section}.{k}": v for k, v in record.get(section, {}).items()})
+    row.update({f"config.{k}": v for k, v in flatten(record.get("config", {})).items()})
+    return row
+
+
+def load_runs(roots: Iterable[str | Path]) -> pd.DataFrame:
+    """Every ``run.json`` under ``roots`` (searched recursively), one row each, oldest first."""
+    paths = sorted(
+        {p.resolve() for root in roots for p in Path(root).rglob(RECORD_NAME)},
+        key=lambda p: p.stat().st_mtime,
+    )
+    rows = []
+    for path in paths:
+        try:
+            rows.append(_row(path, json.loads(path.read_text())))
+        except (OSError, json.JSONDecodeError) as error:
+            rows.append({"record": str(path), "status": "unreadable", "error": str(error)})
+    return pd.DataFrame(rows)
+
+
+def finished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
+    """The finished runs of ``task``."""
+    if runs.empty:
+        return runs
+    return runs[(runs["task"] == task) & (runs["status"] == "finished")]
+
+
+def unfinished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
+    """The runs of ``task`` that are not finished (failed, running, legacy): to list, not average."""
+    if runs.empty:
+        return runs
+    return runs[(runs["task"] == task) & (runs["status"] != "finished")]
+
+
+def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> pd.DataFrame:
+    """One row per cell: ``labels`` (taken from its runs), each metric's mean, std and the runs
+    behind it (``runs``, ``seeds``, ``records``, ``machines``, ``gits``)."""
+    columns = [*labels, *CELL_KEYS]
+    out = []
+    for _, group in runs.groupby(CELL_KEYS, dropna=False, sort=False):
+        row = {label: group[label].iloc[0] for label in labels}
+        row.update({key: group[key].iloc[0] for key in CELL_KEYS})
+        for metric in metrics:
+            values = pd.to_numeric(group.get(metric), errors="coerce")
+            row[f"{metric}:mean"] = values.mean()
+            row[f"{metric}:std"] = values.std(ddof=1) if len(values) > 1 else float("nan")
+        row["runs"] = len(group)
+        row["seeds"] = sorted(group["seed"].dropna().astype(int).tolist())
+        row["records"] = group["record"].tolist()
+        row["machines"] = sorted(set(group["machine"]))
+        row["gits"] = sorted(set(group["git"].dropna()))
+        out.append(row)
+    frame = pd.DataFrame(out)
+    return (
+        frame.sort_values(list(labels), kind="stable")
+        if not frame.empty
+        else frame.reindex(columns=columns)
+    )
