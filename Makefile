@@ -24,7 +24,7 @@ setup: $(VENV)/.installed
 DEMO_DIR := results/sweeps/kth_demo
 demo: setup
 	$(BIN)/edr-run -m experiment=kth_demo representation=edr,fdr hydra.sweep.dir=$(DEMO_DIR)
-	$(BIN)/edr-tables --runs $(DEMO_DIR) --out $(DEMO_DIR)/table4.md
+	$(BIN)/edr-tables --runs $(DEMO_DIR) --out $(DEMO_DIR)
 
 test: setup
 	$(BIN)/ruff check src tests

@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
-from omegaconf import DictConfig
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, open_dict
 
 from clips import translating_clip
 from edr.run import CONF_DIR
@@ -28,8 +29,14 @@ def moving_left() -> torch.Tensor:
 
 
 def _compose(*overrides: str) -> DictConfig:
+    """As Hydra prepares a job: composed with its Hydra config, which the job then sees through
+    ``HydraConfig`` (group choices, overrides) and no longer as a key."""
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+        cfg = compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        del cfg["hydra"]
+    return cfg
 
 
 @pytest.fixture

@@ -65,9 +65,9 @@ def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
 def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
     bench.main(
         ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0", "--frame-stack", "2",
-         "--out-dir", str(tmp_path), "--atari-table", str(tmp_path / "atari.md")]
+         "--out-dir", str(tmp_path / "bench")]
     )  # fmt: skip
-    (record_path,) = tmp_path.glob("atari_*.json")
+    (record_path,) = (tmp_path / "bench").glob("atari_*.json")
     record = json.loads(record_path.read_text())
     assert [row["name"] for row in record["rows"]] == [
         "Pong: FDR RGB, 2 frames, float16",
@@ -77,27 +77,8 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     assert len(record["costs"]) == 2 and record["cost"] == statistics.median(record["costs"])
     assert all(ms > 0 for ms in record["main_cpu_ms"])
     assert "EDR costs" in capsys.readouterr().out
-    row = (tmp_path / "atari.md").read_text().splitlines()[-1]
+    assert not (tmp_path / "paper").exists()  # edr-bench writes records only
+    tables.main(["--runs", str(tmp_path), "--out", str(tmp_path / "paper")])
+    row = (tmp_path / "paper" / "atari_edr_cost.md").read_text().splitlines()[-1]
     assert row.startswith("| Pong | 2 | 2 | float16 |") and f"{record['cost']:.1f} %" in row
     assert record_path.name in row
-
-
-def test_bench_writes_record_and_table(tmp_path) -> None:
-    table = tmp_path / "paper" / "table2_speed.md"
-    bench.main(
-        [
-            "--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
-            "--width", "48", "--atari-batch", "2", "--out-dir", str(tmp_path / "bench"), "--table", str(table),
-        ]
-    )  # fmt: skip
-    (record_path,) = (tmp_path / "bench").glob("speed_*.json")
-    record = json.loads(record_path.read_text())
-    names = {row["name"] for row in record["rows"]}
-    assert {"EDR K=1 soft gray", "GrayDiff", "TV-L1 flow", "Farneback flow", "MPEG flow"} <= names
-    assert all(row["fps"] > 0 for row in record["rows"])
-    text = table.read_text()
-    assert "48x32" in text and "EDR K=1 / GrayDiff" in text and "9,800.0" in text
-    assert "generated scene" in text  # the data source is stated
-    table.unlink()
-    tables.main(["--results", str(tmp_path), "--paper", str(tmp_path / "paper")])
-    assert table.read_text().startswith("# Table 2, speed")

@@ -30,6 +30,7 @@ from edr.allocator import keep_freed_memory
 from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene
 from edr.records import git_revision, machine_info
+from edr.report.speed import atari_cost_table, speed_table
 from edr.representations import (
     EDR,
     FDR,
@@ -43,7 +44,6 @@ from edr.representations import (
     decode_motion_vectors,
 )
 from edr.representations.mpeg_flow import encode_clip
-from edr.tables import atari_cost_table, speed_table
 
 K3 = (1.0, 3.8, 8.0)
 

@@ -24,6 +24,9 @@ from edr.records import RECORD_NAME
 
 # What must match for runs to be averaged into one number.
 CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]
+# Columns every frame has, even with no records (or only records from before the store).
+BASE_COLUMNS = ["record", "run_dir", "task", "status", "error", "fingerprint", "seed", "git",
+                "machine", "ended_at", *CELL_KEYS]  # fmt: skip
 
 
 def _machine(record: dict[str, Any]) -> str:
@@ -64,14 +67,17 @@ def load_runs(roots: Iterable[str | Path]) -> pd.DataFrame:
             rows.append(_row(path, json.loads(path.read_text())))
         except (OSError, json.JSONDecodeError) as error:
             rows.append({"record": str(path), "status": "unreadable", "error": str(error)})
-    return pd.DataFrame(rows)
+    frame = pd.DataFrame(rows)
+    return frame.reindex(columns=[*BASE_COLUMNS, *(c for c in frame if c not in BASE_COLUMNS)])
 
 
 def finished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
-    """The finished runs of ``task``."""
+    """The finished runs of ``task``; of several records of one fingerprint (the same run in two
+    folders), the newest only, so that no run is counted twice."""
     if runs.empty:
         return runs
-    return runs[(runs["task"] == task) & (runs["status"] == "finished")]
+    done = runs[(runs["task"] == task) & (runs["status"] == "finished")]
+    return done.drop_duplicates("fingerprint", keep="last")
 
 
 def unfinished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
@@ -100,8 +106,6 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
         row["gits"] = sorted(set(group["git"].dropna()))
         out.append(row)
     frame = pd.DataFrame(out)
-    return (
-        frame.sort_values(list(labels), kind="stable")
-        if not frame.empty
-        else frame.reindex(columns=columns)
-    )
+    if frame.empty:
+        return frame.reindex(columns=columns)
+    return frame.sort_values(list(labels), key=lambda c: c.astype(str), kind="stable")

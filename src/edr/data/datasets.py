@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from edr.data.fingerprint import files_fingerprint
+from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
 from edr.identity import digest
 from edr.validate import ConfigError, Fraction
@@ -59,6 +59,7 @@ class VideoSet:
 
     videos: tuple[Video, ...]
     classes: tuple[str, ...]
+    index_files: tuple[Path, ...] = ()  # files that define the split (UCF-101's lists)
 
     def __len__(self) -> int:
         return len(self.videos)
@@ -115,7 +116,7 @@ def ucf101(root: str | Path, *, split: Literal[1, 2, 3] = 1, train: bool = True)
     if not videos:
         raise ValueError(f"{list_file} lists no videos")
     names = tuple(sorted(classes, key=classes.get))
-    return VideoSet(tuple(videos), names)
+    return VideoSet(tuple(videos), names, (class_file, list_file))
 
 
 def kth(
@@ -174,16 +175,11 @@ def resolve_root(
     return synthetic(root)
 
 
-def videos_fingerprint(root: Path, splits: dict[str, VideoSet]) -> str:
-    """The content fingerprint of every video of ``splits``, with its split and label."""
-    members = [
-        (
-            name,
-            str(v.path.relative_to(root)) if v.path.is_relative_to(root) else v.path.name,
-            v.label,
-        )
-        for name, split in splits.items()
-        for v in split.videos
-    ]
-    paths = [v.path for split in splits.values() for v in split.videos]
-    return files_fingerprint(paths, root, extra=sorted(members))
+def videos_fingerprint(root: Path, splits: Sequence[VideoSet]) -> str:
+    """The content fingerprint of the videos of ``splits`` with their labels, and of the files
+    that define the splits; not of which video a seeded random split put where (the seed is in
+    the run's config), so that the seeds of one cell share their data's fingerprint."""
+    videos = {v.path: v.label for split in splits for v in split.videos}
+    index = {f for split in splits for f in split.index_files}
+    labels = sorted((relative_name(p, root), label) for p, label in videos.items())
+    return files_fingerprint([*videos, *index], root, extra=labels)

@@ -15,12 +15,17 @@ from edr.identity import digest
 HASH_UP_TO_BYTES = 64 * 2**20  # sets up to this size are hashed byte by byte
 
 
+def relative_name(path: Path, root: Path) -> str:
+    """``path`` relative to ``root`` where it lies under it, else its file name."""
+    return str(path.relative_to(root)) if path.is_relative_to(root) else path.name
+
+
 def files_fingerprint(files: Sequence[Path], root: Path, extra: Any = None) -> str:
     """``content:<digest>`` or ``stat:<digest>`` of ``files`` (named relative to ``root``) and
-    of ``extra`` (e.g. which file is in which split, with which label)."""
+    of ``extra`` (e.g. each file's label)."""
     files = sorted(Path(f) for f in files)
     stats = [f.stat() for f in files]
-    names = [str(f.relative_to(root)) if f.is_relative_to(root) else f.name for f in files]
+    names = [relative_name(f, root) for f in files]
     if sum(s.st_size for s in stats) <= HASH_UP_TO_BYTES:
         h = hashlib.sha256()
         for name, f in zip(names, files, strict=True):

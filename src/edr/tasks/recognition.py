@@ -222,7 +222,7 @@ def fit_recognition(
         "data/source": "real" if data_root else "generated",
         "data/synthetic": data_root is None,
         "data/root": str(root),
-        "data/fingerprint": videos_fingerprint(root, {"train": train_videos, "test": test_videos}),
+        "data/fingerprint": videos_fingerprint(root, [train_videos, test_videos]),
         "data/train_videos": len(train_videos),
         "data/test_videos": len(test_videos),
         **scores,

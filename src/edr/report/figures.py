@@ -1,0 +1,244 @@
+"""The paper's figures from run records: each a PNG and a caption file (``<name>.md``) that says
+which data, which scale, which machine and which records it shows. A figure whose runs do not
+exist yet is not drawn."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from edr.atomic import atomic_path, write_text_atomic
+from edr.report.atari import INPUTS, atari_runs, normalised_scores
+from edr.report.render import provenance
+from edr.results import CELL_KEYS, finished
+
+Draw = Callable[[], "plt.Figure | None"]
+
+
+def _history(record: str) -> list[dict[str, Any]]:
+    file = Path(record).parent / "history.json"
+    return json.loads(file.read_text()) if file.is_file() else []
+
+
+def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFrame]]:
+    """(label, runs) per cell: the runs a line or bar may average."""
+    return [
+        (" / ".join(str(group[label].iloc[0]) for label in labels), group)
+        for _, group in runs.groupby(CELL_KEYS, dropna=False, sort=True)
+    ]
+
+
+def _curves(
+    runs: pd.DataFrame, labels: list[str], x: str, y: str, title: str, xlabel: str, ylabel: str
+) -> plt.Figure | None:
+    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band."""
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    drawn = False
+    for label, group in _cells(runs, labels):
+        series = [[(row[x], row[y]) for row in _history(r) if y in row] for r in group["record"]]
+        series = [s for s in series if s]
+        if not series:
+            continue
+        n = min(len(s) for s in series)
+        xs = np.array([p[0] for p in series[0][:n]])
+        ys = np.array([[p[1] for p in s[:n]] for s in series])  # (runs, points)
+        ax.plot(xs, ys.mean(0), label=f"{label} ({len(series)} runs)")
+        ax.fill_between(xs, ys.min(0), ys.max(0), alpha=0.2)
+        drawn = True
+    if not drawn:
+        plt.close(fig)
+        return None
+    ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    done = atari_runs(runs)
+    done = done.assign(
+        label=[f"{g}, {INPUTS.get(i, i)}" for g, i in zip(done["game"], done["input"], strict=True)]
+    )
+    return done, lambda: _curves(
+        done,
+        ["label"],
+        "frames",
+        "train/score",
+        "Figure 5: training score, FDR vs FDR+EDR",
+        "env steps",
+        "mean score of the last 20 episodes",
+    )
+
+
+def fig10_kth_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    done = finished(runs, "kth")
+    return done, lambda: _curves(
+        done,
+        ["choices.backbone", "choices.representation"],
+        "epoch",
+        "eval/accuracy",
+        "Figure 10: KTH test accuracy during training",
+        "epoch",
+        "test video accuracy",
+    )
+
+
+def _per_class(done: pd.DataFrame) -> plt.Figure | None:
+    columns = [c for c in done.columns if c.startswith("metrics.eval/per_class/")]
+    cells = _cells(done, ["choices.representation"])
+    if not columns or not cells:
+        return None
+    classes = [c.rsplit("/", 1)[1] for c in columns]
+    fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes) * len(cells)), 3.5))
+    width = 0.8 / len(cells)
+    for k, (label, group) in enumerate(cells):
+        means = group[columns].apply(pd.to_numeric, errors="coerce").mean().to_numpy()
+        ax.bar(np.arange(len(classes)) + k * width, means, width, label=label)
+    ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=60, fontsize=7)
+    ax.set(title="Figure 6: per-class accuracy by representation", ylabel="accuracy", ylim=(0, 1))
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fig6_ucf101_per_class(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    done = finished(runs, "ucf101")
+    return done, lambda: _per_class(done)
+
+
+def _confusion(done: pd.DataFrame) -> plt.Figure | None:
+    cells = _cells(done, ["data.events"])
+    if not cells:
+        return None
+    fig, axes = plt.subplots(1, len(cells), figsize=(4.5 * len(cells), 4), squeeze=False)
+    for ax, (label, group) in zip(axes[0], cells, strict=True):
+        files = [
+            json.loads((Path(r).parent / "confusion.json").read_text()) for r in group["record"]
+        ]
+        matrix = np.mean([f["matrix"] for f in files], axis=0)
+        ax.imshow(matrix, cmap="Blues")
+        ax.set_xticks(range(len(files[0]["classes"])), files[0]["classes"], rotation=60, fontsize=7)
+        ax.set_yticks(range(len(files[0]["classes"])), files[0]["classes"], fontsize=7)
+        ax.set(xlabel="predicted", ylabel="true", title=f"{label[:40]} ({len(files)} runs)")
+    fig.suptitle("Figure 7b: DVS transfer, confusion matrix after fine-tuning", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def fig7b_dvs_confusion(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    done = finished(runs, "dvs_transfer")
+    return done, lambda: _confusion(done)
+
+
+def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
+    columns = [c for c in done.columns if c.startswith("metrics.sparsity/")]
+    cells = _cells(done, ["choices.backbone", "choices.representation"])
+    if not columns or not cells:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    layers = [c.removeprefix("metrics.sparsity/") for c in columns]
+    for label, group in cells:
+        values = group[columns].apply(pd.to_numeric, errors="coerce").mean().to_numpy()
+        ax.plot(range(len(layers)), values, "o-", label=label)
+    ax.set_xticks(range(len(layers)), layers, rotation=60, fontsize=7)
+    ax.set(title="Figure 11: fraction of zero activations per layer", ylabel="zeros", ylim=(0, 1))
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def fig11_activation_sparsity(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    done = finished(runs, "kth")
+    return done, lambda: _sparsity(done)
+
+
+def _profile(done: pd.DataFrame, published: dict[str, Any]) -> plt.Figure | None:
+    from rliable import library as rly
+    from rliable import plot_utils
+
+    scores = normalised_scores(done, published)
+    if not scores:
+        return None
+    taus = np.linspace(-0.5, 1.5, 41)
+    profiles, intervals = rly.create_performance_profile(scores, taus, reps=500)
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    plot_utils.plot_performance_profiles(
+        profiles,
+        taus,
+        performance_profile_cis=intervals,
+        xlabel="human-normalised score tau",
+        labelsize="small",
+        ax=ax,
+    )
+    ax.legend(list(scores), fontsize=7)
+    ax.set_title("Performance profile, FDR vs FDR+EDR (beyond the paper)", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def atari_performance_profile(
+    runs: pd.DataFrame, published: dict[str, Any]
+) -> tuple[pd.DataFrame, Draw]:
+    done = atari_runs(runs)
+    return done, lambda: _profile(done, published)
+
+
+def write_figure(
+    name: str, title: str, runs: pd.DataFrame, draw: Draw, out_dir: Path
+) -> list[Path]:
+    """``<out_dir>/figures/<name>.png`` and its caption ``<name>.md``; nothing if ``draw`` has no
+    data to show."""
+    if runs.empty:
+        return []
+    fig = draw()
+    if fig is None:
+        return []
+    png = out_dir / "figures" / f"{name}.png"
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    caption = [
+        f"# {title}",
+        "",
+        f"![{title}]({png.name})",
+        "",
+        *provenance(runs),
+        "",
+        "Records:",
+        "",
+    ]
+    caption += [f"- `{r}`" for r in runs["record"]]
+    return [png, write_text_atomic(png.with_suffix(".md"), "\n".join(caption) + "\n")]
+
+
+def copy_pixel_response(runs: pd.DataFrame, out_dir: Path) -> list[Path]:
+    """Figure 3b: the newest representation-demo run's picture of one pixel over time."""
+    done = finished(runs, "representation_demo")
+    if done.empty:
+        return []
+    newest = done.iloc[[-1]]
+    source = Path(newest["record"].iloc[0]).parent / "pixel_response.png"
+    png = out_dir / "figures" / "figure3b_pixel_response.png"
+    with atomic_path(png) as tmp:
+        shutil.copyfile(source, tmp)
+    title = "Figure 3b: one pixel's response to every representation (task=representation_demo)"
+    caption = [
+        f"# {title}",
+        "",
+        f"![{title}]({png.name})",
+        "",
+        *provenance(newest),
+        "",
+        f"Record: `{newest['record'].iloc[0]}`",
+    ]
+    return [png, write_text_atomic(png.with_suffix(".md"), "\n".join(caption) + "\n")]

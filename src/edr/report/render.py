@@ -1,0 +1,118 @@
+"""A table as the paper step writes it: rows, what they are, where they come from; as Markdown
+(``DataFrame.to_markdown``) and LaTeX (``Styler.to_latex``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from edr.atomic import write_text_atomic
+
+SCALE_WORDS = {"tiny": "tiny (the CI subset: seconds per run)", "full": "full protocol"}
+SOURCE_WORDS = {
+    "generated": "generated data in the data set's layout (not the real data set)",
+    "real": "the real data set",
+    "mixed": "real and generated data mixed",
+    "emulator": "the Atari emulator (ale-py)",
+}
+
+
+@dataclass
+class Table:
+    """One table of ``paper/``: ``frame`` holds its display rows; ``runs`` the records behind it."""
+
+    name: str  # file stem: paper/<name>.md and .tex
+    title: str
+    frame: pd.DataFrame
+    runs: pd.DataFrame  # the finished runs averaged into it
+    notes: list[str] = field(default_factory=list)  # what the columns mean
+    unfinished: pd.DataFrame | None = None  # failed, running and legacy records: listed only
+    extra: str = ""  # Markdown appended after the rows (a second small table, ratios)
+    from_code: bool = False  # declared by the code, not measured: no runs behind it
+
+
+def mean_std(mean: float, std: float, scale: float = 1.0, fmt: str = ".1f") -> str:
+    """``mean ± std`` (std over seeds; alone where there is one run)."""
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "—"
+    text = format(scale * mean, fmt)
+    return text if std is None or math.isnan(std) else f"{text} ± {format(scale * std, fmt)}"
+
+
+def _words(values: pd.Series, words: dict[str, str]) -> str:
+    found = sorted({str(v) for v in values.dropna()})
+    return "; ".join(words.get(v, v) for v in found) or "—"
+
+
+def provenance(runs: pd.DataFrame, from_code: bool = False) -> list[str]:
+    """Where the numbers come from: data, scale, machines, git revisions, how many records."""
+    if from_code:
+        return ["- **From the code**: declared properties, not measurements."]
+    if runs.empty:
+        return ["- **No finished runs** behind this table yet."]
+    return [
+        f"- **Data**: {_words(runs['data.source'], SOURCE_WORDS)}.",
+        f"- **Scale**: {_words(runs['scale'], SCALE_WORDS)}.",
+        f"- **Machine**: {_words(runs['machine'], {})}.",
+        f"- **Code**: git {_words(runs['git'], {})}.",
+        f"- **Runs**: {len(runs)} finished records; a row averages only runs that share every "
+        "setting but the seed (mean ± std over seeds), and says how many.",
+    ]
+
+
+def to_markdown(table: Table) -> str:
+    lines = [
+        f"# {table.title}",
+        "",
+        *provenance(table.runs, table.from_code),
+        *(f"- {n}" for n in table.notes),
+        "",
+    ]
+    lines.append(table.frame.to_markdown(index=False) if not table.frame.empty else "(no rows)")
+    if table.extra:
+        lines += ["", table.extra]
+    lines += ["", "Records:", ""] + [f"- `{r}`" for r in table.runs.get("record", [])]
+    if table.unfinished is not None and not table.unfinished.empty:
+        lines += ["", "Not averaged (not finished):", ""]
+        lines += [
+            f"- `{r.record}`: {r.status}" + (f" ({r.error})" if isinstance(r.error, str) else "")
+            for r in table.unfinished.itertuples()
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def _latex_escape(text: str) -> str:
+    for char, escaped in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("$", r"\$"),
+                          ("#", r"\#"), ("_", r"\_"), ("{", r"\{"), ("}", r"\}"), ("±", r"$\pm$"),
+                          ("—", "--"), ("≈", r"$\approx$")):  # fmt: skip
+        text = text.replace(char, escaped)
+    return text
+
+
+def to_latex(table: Table) -> str:
+    """A ``table`` environment; the caption carries the provenance lines."""
+    caption = " ".join(
+        [
+            table.title,
+            *(
+                line.removeprefix("- ").replace("**", "")
+                for line in provenance(table.runs, table.from_code)
+            ),
+        ]
+    )
+    frame = table.frame.map(lambda v: _latex_escape(str(v)))
+    frame.columns = [_latex_escape(str(c)) for c in frame.columns]
+    return frame.style.hide(axis="index").to_latex(
+        caption=_latex_escape(caption), label=f"tab:{table.name}", hrules=True, position="htbp"
+    )
+
+
+def write_table(table: Table, out_dir: Path) -> list[Path]:
+    """``<out_dir>/<name>.md`` and ``.tex``."""
+    return [
+        write_text_atomic(out_dir / f"{table.name}.md", to_markdown(table)),
+        write_text_atomic(out_dir / f"{table.name}.tex", to_latex(table)),
+    ]

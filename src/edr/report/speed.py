@@ -1,0 +1,136 @@
+"""Tables of ``edr-bench`` records: Table 2's speed column (with the ratios) and what EDR costs
+in the Atari loop. ``edr-bench`` prints them; ``edr-tables`` writes them to ``paper/``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from edr.report.published import cite, load_published, lookup
+
+PUBLISHED_SPEED = load_published().get("speed", {})
+# Bench row names -> the representation names published.yaml uses.
+PUBLISHED_ROW_NAMES = {"EDR K=1 soft gray": "edr", "Brox flow": "brox"}
+# Config names (representation/) -> the bench row that times them (name, implementation).
+BENCH_ROWS = {
+    "edr": ("EDR K=1 soft gray", "fused numba kernel"),
+    "edr_k3": ("EDR K=3 soft gray", "fused numba kernel"),
+    "graydiff": ("GrayDiff", None),
+    "rgbdiff": ("RGBDiff", None),
+    "fdr": ("FDR (RGB frames)", None),
+    "mpeg_flow": ("MPEG flow", None),
+    "farneback": ("Farneback flow", None),
+    "tvl1": ("TV-L1 flow", None),
+    "dvs": ("DVS simulator", None),
+}
+
+
+def bench_fps(
+    rows: list[dict[str, Any]], name: str, implementation: str | None = None
+) -> float | None:
+    """Best fps among the rows called ``name`` (and, if given, with that implementation)."""
+    found = [
+        r["fps"]
+        for r in rows
+        if r["name"] == name and (implementation is None or r["implementation"] == implementation)
+    ]
+    return max(found) if found else None
+
+
+def _ratio(a: float | None, b: float | None, fmt: str) -> str:
+    return format(a / b, fmt) if a and b else "n/a"
+
+
+def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """A Markdown table of EDR's speed over GrayDiff's and the flows', from one bench record."""
+    edr = bench_fps(rows, "EDR K=1 soft gray", "fused numba kernel")
+    edr_k3 = bench_fps(rows, "EDR K=3 soft gray")
+    edr_stream = bench_fps(rows, "EDR K=1 soft gray, streaming")
+    gray_diff = bench_fps(rows, "GrayDiff")
+    tvl1, farneback = bench_fps(rows, "TV-L1 flow"), bench_fps(rows, "Farneback flow")
+    return [
+        "| Ratio | Ours | Paper |",
+        "|---|---:|---:|",
+        f"| EDR K=1 / GrayDiff | {_ratio(edr, gray_diff, '.2f')} | {cite(PUBLISHED_SPEED.get('edr_over_graydiff'))} |",
+        f"| EDR K=1 streaming (per frame) / GrayDiff (per clip) | {_ratio(edr_stream, gray_diff, '.2f')} | — |",
+        f"| EDR K=3 / GrayDiff | {_ratio(edr_k3, gray_diff, '.2f')} | — |",
+        f"| EDR K=1 / TV-L1 | {_ratio(edr, tvl1, ',.0f')}x | {cite(PUBLISHED_SPEED.get('edr_over_optical_flow'))} |",
+        f"| EDR K=1 / Farneback | {_ratio(edr, farneback, ',.0f')}x | — |",
+    ]
+
+
+def speed_table(record: dict[str, Any], source: str = "") -> str:
+    """Markdown for the speed column of Table 2 from one ``edr-bench`` record."""
+    m = record["machine"]
+    rows = record["rows"]
+    lines = [
+        "# Table 2, speed: representations per second, ours beside the paper's",
+        "",
+        f"- **Ours**: `edr-bench` on {m['cpu']} ({m['cpu_count']} cores), "
+        f"{m['torch_threads']} torch / {m.get('numba_threads', '?')} numba threads, "
+        f"allocator: {m.get('allocator', '?')}, GPU: {m.get('gpu') or 'none'}; {record['measured_at']}, git `{record['git']}`"
+        + (f", record `{source}`" if source else "")
+        + ".",
+        f"- **Data**: {record['clip']}; {record['frames_per_call']} frames per call "
+        f"(slow flows: fewer, see Frames); median of {record['repeats']} timed calls after "
+        f"{record.get('warmup', 1)} warm-up call(s). "
+        "Synthetic unless a video file is named: not a UCF-101 clip.",
+        "- **Published**: the paper's figures, on its own machine and code; "
+        "'—' where we have no published figure to cite.",
+        "- fps counts input frames consumed per second (every env of a batch counted).",
+        "",
+        "| Representation | Implementation | Frame size | Frames | Ours (fps) | Published (fps) |",
+        "|---|---|---|---:|---:|---:|",
+    ]
+    for r in rows:
+        published = (
+            lookup(PUBLISHED_SPEED, "fps", PUBLISHED_ROW_NAMES.get(r["name"], ""))
+            if "torch" not in r["implementation"]
+            else None
+        )
+        lines.append(
+            f"| {r['name']} | {r['implementation']} | {r['frame_size']} | {r['frames']} | "
+            f"{r['fps']:,.1f} | {f'{published:,.1f}' if published else '—'} |"
+        )
+    lines += [
+        "",
+        "Ratios, ours from this one run (GrayDiff = its fastest implementation here):",
+        "",
+        *ratio_lines(rows),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
+    """Markdown: one row per ``edr-bench --atari`` record, EDR's cost in env steps per second."""
+    paired = [(p, r) for p, r in records if "costs" in r]
+    lines = [
+        "# What EDR costs in the Atari loop: env steps per second with and without it",
+        "",
+        "`edr-bench --atari ENVS`: a torchrl ParallelEnv of ENVS games, paac preset, random",
+        "actions, played as a collector plays them; FDR RGB vs FDR RGB + EDR on gray (Appendix C's",
+        "5 channels per frame), both stacked over the frames given, in the observation dtype given.",
+        "The two envs take turns; the cost is the median over pairs of rollouts of",
+        "1 - (FDR+EDR steps/s) / (FDR steps/s), with the pairs' range. The goal is at most 5 %.",
+        "Main CPU: CPU milliseconds the main process",
+        "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run).",
+        "",
+        "| Game | Envs | Frames stacked | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Machine | Measured, git | Record |",
+        "|---|---:|---:|---|---:|---:|---:|---|---|---|---|---|",
+    ]
+    for path, r in paired:
+        fdr, edr = r["rows"]
+        costs, m = r["costs"], r["machine"]
+        lines.append(
+            f"| {r['game']} | {r['num_envs']} | {r['frame_stack']} | "
+            f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "
+            f"{edr['fps']:,.1f} | {r['cost']:.1f} % | {len(costs)}: {min(costs):.1f} to "
+            f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | "
+            f"{m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'} | "
+            f"{r['measured_at']}, `{r['git']}` | `{path.name}` |"
+        )
+    older = [p.name for p, r in records if "costs" not in r]
+    if older:
+        lines += ["", f"Older records, from before paired timing, not shown: {', '.join(older)}."]
+    return "\n".join([*lines, ""])

@@ -1,0 +1,148 @@
+"""Every table and figure regenerates from its tiny sweep: each paper sweep runs once at
+``debug=tiny`` (``edr.sweeps.TINY_SWEEPS``), ``edr-tables`` renders from their records, and each
+table is checked for its rows, columns and labels."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from edr import bench, tables
+from edr.results import load_runs
+from edr.run import run
+from edr.sweeps import run_tiny_sweeps
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory) -> Path:
+    """Every tiny sweep run once, then ``edr-tables`` over all of them into ``<root>/paper``."""
+    root = tmp_path_factory.mktemp("paper_sweeps")
+    run_tiny_sweeps(root / "sweeps", env={"EDR_CACHE": str(root / "cache")})
+    (root / "bench").mkdir()
+    bench.main(
+        ["--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
+         "--width", "48", "--atari-batch", "2", "--out-dir", str(root / "bench")]
+    )  # fmt: skip
+    tables.main(["--runs", str(root / "sweeps"), "--bench", str(root / "bench"),
+                 "--out", str(root / "paper")])  # fmt: skip
+    return root / "paper"
+
+
+def _first_table(markdown: str) -> list[list[str]]:
+    """The first Markdown table's lines (header, rule, body), split into cells."""
+    lines = markdown.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
+    return [[c.strip() for c in line.strip("|").split("|")] for line in lines[start:end]]
+
+
+def _rows(markdown: str) -> list[list[str]]:
+    return _first_table(markdown)[2:]
+
+
+def _header(markdown: str) -> list[str]:
+    return _first_table(markdown)[0]
+
+
+def _labelled(text: str) -> None:
+    assert "generated data in the data set's layout (not the real data set)" in text or (
+        "the Atari emulator" in text
+    )
+    assert "tiny (the CI subset" in text and "cores), GPU:" in text
+    assert "Records:" in text
+
+
+@pytest.mark.slow
+def test_table1_atari(paper) -> None:
+    text = (paper / "table1_atari.md").read_text()
+    _labelled(text)
+    header = _header(text)
+    assert header[:4] == ["Game", "Input", "Data", "Scale"]
+    assert {"Avg", "Best", "Worst", "Runs", "Published Avg"} <= set(header)
+    rows = _rows(text)
+    assert sorted((r[0], r[1]) for r in rows) == [
+        ("Breakout", "FDR"), ("Breakout", "FDR+EDR"), ("Pong", "FDR"), ("Pong", "FDR+EDR"),
+    ]  # fmt: skip
+    assert all(r[header.index("Runs")] == "2" for r in rows)  # two seeds per cell
+    assert "Avg. gain of FDR+EDR over FDR" in text and "| +23.8 |" in text  # the published gain
+    assert "interquartile mean" in text and "95 % interval" in text
+    assert (paper / "table1_atari.tex").read_text().startswith("\\begin{table}")
+    for figure in ("figure5_atari_curves", "atari_performance_profile"):
+        assert (paper / "figures" / f"{figure}.png").stat().st_size > 1000
+        assert "emulator" in (paper / "figures" / f"{figure}.md").read_text()
+
+
+@pytest.mark.slow
+def test_table2_ucf101_with_the_speed_column(paper) -> None:
+    text = (paper / "table2_ucf101.md").read_text()
+    _labelled(text)
+    header = _header(text)
+    assert {"Representation", "Accuracy (%)", "Speed (fps)", "Published (fps)"} <= set(header)
+    rows = {r[0]: r for r in _rows(text)}
+    assert set(rows) == {"edr", "fdr", "graydiff"}
+    assert rows["edr"][header.index("Published (fps)")] == "9,800.0"
+    assert rows["edr"][header.index("Speed (fps)")] != "—"
+    assert rows["edr"][header.index("Published (%)")] == "—"  # generated data: no paper number
+    assert "EDR K=1 / GrayDiff" in text and "EDR K=1 / TV-L1" in text
+    (record,) = (paper.parent / "bench").glob("speed_*.json")
+    names = {row["name"] for row in json.loads(record.read_text())["rows"]}
+    assert {"EDR K=1 soft gray", "GrayDiff", "TV-L1 flow", "Farneback flow", "MPEG flow"} <= names
+    speed = (paper / "table2_speed.md").read_text()
+    assert speed.startswith("# Table 2, speed") and "48x32" in speed and "9,800.0" in speed
+    assert "generated scene" in speed  # the data source is stated
+    assert (paper / "figures" / "figure6_ucf101_per_class.png").is_file()
+
+
+@pytest.mark.slow
+def test_table3_event_camera(paper) -> None:
+    text = (paper / "table3_event_camera.md").read_text()
+    _labelled(text)
+    rows = {r[1]: r for r in _rows(text)}
+    assert set(rows) == {"frames", "edr_soft", "edr_hard", "dvs"}
+    header = _header(text)
+    assert all(r[header.index("Runs")] == "2" for r in rows.values())
+    sparsity = {name: float(r[header.index("Sparsity")].split(" ")[0]) for name, r in rows.items()}
+    assert sparsity["frames"] < 0.5 < sparsity["edr_hard"] and sparsity["dvs"] > 0.5
+    assert "hardware rows" in text
+
+
+@pytest.mark.slow
+def test_table4_kth(paper) -> None:
+    text = (paper / "table4_kth.md").read_text()
+    _labelled(text)
+    header = _header(text)
+    rows = _rows(text)
+    assert sorted((r[0], r[1]) for r in rows) == sorted(
+        (b, r) for b in ("lenet_lrcn", "lenet_grurcn", "lenet_ftrcn") for r in ("fdr", "edr")
+    )
+    assert all(r[header.index("Runs (seeds)")] == "2 (0, 1)" for r in rows)
+    assert "Published (%)" in header and "paper/published.yaml" in text
+    for figure in ("figure10_kth_curves", "figure11_activation_sparsity"):
+        assert (paper / "figures" / f"{figure}.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_appendix_a_ablations_features_and_the_demo_figure(paper) -> None:
+    text = (paper / "appendix_a_dvs.md").read_text()
+    _labelled(text)
+    assert {"Zero-shot (%)", "Fine-tuned (%)", "Published fine-tuned (%)"} <= set(_header(text))
+    assert (paper / "figures" / "figure7b_dvs_confusion.png").is_file()
+    ablation = (paper / "ablation_edr.md").read_text()
+    assert sorted(r[0] for r in _rows(ablation)) == ["hard", "paper", "sum"]
+    features = {r[0]: r for r in _rows((paper / "figure2b_features.md").read_text())}
+    assert features["edr"][1] == "EDR" and features["tvl1"][1] == "TVL1"
+    assert "From the code" in (paper / "figure2b_features.md").read_text()
+    assert (paper / "figures" / "figure3b_pixel_response.png").is_file()
+
+
+def test_incomparable_runs_land_in_two_rows(compose_config, tmp_path) -> None:
+    common = ("task=kth", "debug=tiny", f"task.cache_dir={tmp_path / 'cache'}", "task.logger=")
+    run(compose_config(*common, "task.epochs=1", f"out_dir={tmp_path / 'runs' / 'one'}"))
+    run(compose_config(*common, "task.epochs=2", f"out_dir={tmp_path / 'runs' / 'two'}"))
+    tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
+    rows = _rows((tmp_path / "paper" / "table4_kth.md").read_text())
+    assert len(rows) == 2 and rows[0][:2] == rows[1][:2] == ["lenet_ftrcn", "edr"]
+    assert rows[0][-1] != rows[1][-1]  # two cells
+    assert len(load_runs([tmp_path / "runs"])) == 2
