@@ -8,7 +8,7 @@ WHEELS  := $(wildcard /opt/wheels)
 FIND    := $(if $(WHEELS),--find-links $(WHEELS),)
 TORCH   ?= torch==2.13.0
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo paper-tiny test lint bench clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -25,6 +25,13 @@ DEMO_DIR := results/sweeps/kth_demo
 demo: setup
 	$(BIN)/edr-run -m experiment=kth_demo representation=edr,fdr hydra.sweep.dir=$(DEMO_DIR)
 	$(BIN)/edr-tables --runs $(DEMO_DIR) --out $(DEMO_DIR)
+	cat $(DEMO_DIR)/table4_kth.md
+
+# paper/ as committed: the tiny sweep of every table (generated data, seconds a run), then every
+# table and figure from the records under results/ (the speed records included).
+paper-tiny: setup
+	$(BIN)/python -m edr.sweeps results/sweeps/tiny
+	$(BIN)/edr-tables
 
 test: setup
 	$(BIN)/ruff check src tests

@@ -34,10 +34,16 @@ def _machine(record: dict[str, Any]) -> str:
     return f"{m.get('cpu', '?')} ({m.get('cpu_count', '?')} cores), GPU: {m.get('gpu') or 'none'}"
 
 
+def _shown(path: Path) -> str:
+    """``path`` relative to the working directory where it lies under it (tables name records
+    that way, so that a committed table does not carry one machine's absolute paths)."""
+    return str(path.relative_to(Path.cwd())) if path.is_relative_to(Path.cwd()) else str(path)
+
+
 def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {
-        "record": str(path),
-        "run_dir": str(path.parent),
+        "record": _shown(path),
+        "run_dir": _shown(path.parent),
         "task": record.get("task"),
         "status": record.get("status", "legacy"),  # records from before the results store
         "error": record.get("error"),
@@ -66,7 +72,7 @@ def load_runs(roots: Iterable[str | Path]) -> pd.DataFrame:
         try:
             rows.append(_row(path, json.loads(path.read_text())))
         except (OSError, json.JSONDecodeError) as error:
-            rows.append({"record": str(path), "status": "unreadable", "error": str(error)})
+            rows.append({"record": _shown(path), "status": "unreadable", "error": str(error)})
     frame = pd.DataFrame(rows)
     return frame.reindex(columns=[*BASE_COLUMNS, *(c for c in frame if c not in BASE_COLUMNS)])
 

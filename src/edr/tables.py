@@ -38,9 +38,10 @@ from edr.results import load_runs
 
 
 def _bench_records(bench_dir: Path, kind: str) -> list[tuple[Path, dict[str, Any]]]:
-    """``<kind>_*.json`` records in ``bench_dir``, oldest first."""
-    found = sorted(bench_dir.glob(f"{kind}_*.json"), key=lambda p: p.stat().st_mtime)
-    return [(p, json.loads(p.read_text())) for p in found]
+    """``<kind>_*.json`` records in ``bench_dir``, oldest first (by when they were measured:
+    file times change with every checkout)."""
+    found = [(p, json.loads(p.read_text())) for p in bench_dir.glob(f"{kind}_*.json")]
+    return sorted(found, key=lambda item: (item[1].get("measured_at", ""), item[0].name))
 
 
 def render_all(

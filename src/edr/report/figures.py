@@ -19,6 +19,7 @@ import pandas as pd
 
 from edr.atomic import atomic_path, write_text_atomic
 from edr.report.atari import INPUTS, atari_runs, normalised_scores
+from edr.report.recognition import without_ablations
 from edr.report.render import provenance
 from edr.results import CELL_KEYS, finished
 
@@ -38,11 +39,9 @@ def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFram
     ]
 
 
-def _curves(
-    runs: pd.DataFrame, labels: list[str], x: str, y: str, title: str, xlabel: str, ylabel: str
-) -> plt.Figure | None:
-    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band."""
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str) -> bool:
+    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band;
+    False if no run has a point to draw."""
     drawn = False
     for label, group in _cells(runs, labels):
         series = [[(row[x], row[y]) for row in _history(r) if y in row] for r in group["record"]]
@@ -55,46 +54,60 @@ def _curves(
         ax.plot(xs, ys.mean(0), label=f"{label} ({len(series)} runs)")
         ax.fill_between(xs, ys.min(0), ys.max(0), alpha=0.2)
         drawn = True
-    if not drawn:
+    if drawn:
+        ax.legend(fontsize=7)
+    return drawn
+
+
+def _curve_panels(
+    runs: pd.DataFrame,
+    panel: str,
+    labels: list[str],
+    x: str,
+    y: str,
+    title: str,
+    xlabel: str,
+    ylabel: str,
+) -> plt.Figure | None:
+    """One panel per value of ``panel`` (a game, a backbone), curves per cell in each."""
+    panels = sorted(runs[panel].dropna().unique())
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.5), squeeze=False)
+    drawn = [
+        _draw_curves(ax, runs[runs[panel] == p], labels, x, y)
+        for ax, p in zip(axes[0], panels, strict=True)
+    ]
+    for ax, name, ok in zip(axes[0], panels, drawn, strict=True):
+        ax.set(title=name if ok else f"{name}: nothing to draw yet", xlabel=xlabel, ylabel=ylabel)
+    if not any(drawn):
         plt.close(fig)
         return None
-    ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
-    ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
 
 
 def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     done = atari_runs(runs)
-    done = done.assign(
-        label=[f"{g}, {INPUTS.get(i, i)}" for g, i in zip(done["game"], done["input"], strict=True)]
-    )
-    return done, lambda: _curves(
-        done,
-        ["label"],
-        "frames",
-        "train/score",
-        "Figure 5: training score, FDR vs FDR+EDR",
-        "env steps",
-        "mean score of the last 20 episodes",
-    )
+    done = done.assign(label=[INPUTS.get(i, i) for i in done["input"]])
+    return done, lambda: _curve_panels(
+        done, "game", ["label"], "frames", "train/score",
+        "Figure 5: training score, FDR vs FDR+EDR (a game without a finished episode has no curve)",
+        "env steps", "mean score, last 20 episodes",
+    )  # fmt: skip
 
 
 def fig10_kth_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    done = finished(runs, "kth")
-    return done, lambda: _curves(
-        done,
-        ["choices.backbone", "choices.representation"],
-        "epoch",
-        "eval/accuracy",
-        "Figure 10: KTH test accuracy during training",
-        "epoch",
-        "test video accuracy",
-    )
+    done = without_ablations(finished(runs, "kth"))
+    return done, lambda: _curve_panels(
+        done, "choices.backbone", ["choices.representation", "scale"], "epoch", "eval/accuracy",
+        "Figure 10: KTH test accuracy during training", "epoch", "test video accuracy",
+    )  # fmt: skip
 
 
 def _per_class(done: pd.DataFrame) -> plt.Figure | None:
-    columns = [c for c in done.columns if c.startswith("metrics.eval/per_class/")]
+    columns = [
+        c for c in done.columns if c.startswith("metrics.eval/per_class/") and done[c].notna().any()
+    ]
     cells = _cells(done, ["choices.representation"])
     if not columns or not cells:
         return None
@@ -141,8 +154,10 @@ def fig7b_dvs_confusion(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
 
 
 def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
-    columns = [c for c in done.columns if c.startswith("metrics.sparsity/")]
-    cells = _cells(done, ["choices.backbone", "choices.representation"])
+    columns = [
+        c for c in done.columns if c.startswith("metrics.sparsity/") and done[c].notna().any()
+    ]
+    cells = _cells(done, ["choices.backbone", "choices.representation", "scale"])
     if not columns or not cells:
         return None
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -158,7 +173,7 @@ def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
 
 
 def fig11_activation_sparsity(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    done = finished(runs, "kth")
+    done = without_ablations(finished(runs, "kth"))
     return done, lambda: _sparsity(done)
 
 

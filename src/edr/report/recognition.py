@@ -17,7 +17,7 @@ ACCURACY = "metrics.eval/accuracy"
 ABLATION_KEYS = ("half_lives", "beta", "nu_on", "nu_off", "threshold", "return_form", "combine")
 
 
-def _no_ablation(runs: pd.DataFrame) -> pd.DataFrame:
+def without_ablations(runs: pd.DataFrame) -> pd.DataFrame:
     """Runs of the named representations as they are (no ``ablation=`` change, or ``paper``)."""
     if "choices.ablation" not in runs:
         return runs
@@ -49,7 +49,7 @@ def _accuracy_rows(
 
 
 def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
-    done = _no_ablation(finished(runs, "kth"))
+    done = without_ablations(finished(runs, "kth"))
     labels = ["choices.backbone", "choices.representation"]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = (
@@ -94,7 +94,7 @@ def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
 def table2_ucf101(
     runs: pd.DataFrame, published: dict[str, Any], speed: dict[str, Any] | None
 ) -> Table:
-    done = _no_ablation(finished(runs, "ucf101"))
+    done = without_ablations(finished(runs, "ucf101"))
     labels = ["choices.representation", "choices.backbone"]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = pd.DataFrame()

@@ -11,7 +11,11 @@ import pandas as pd
 
 from edr.atomic import write_text_atomic
 
-SCALE_WORDS = {"tiny": "tiny (the CI subset: seconds per run)", "full": "full protocol"}
+SCALE_WORDS = {
+    "tiny": "tiny (the CI subset: seconds per run)",
+    "demo": "demo (`make demo`: minutes on 2 cores)",
+    "full": "full protocol",
+}
 SOURCE_WORDS = {
     "generated": "generated data in the data set's layout (not the real data set)",
     "real": "the real data set",
