@@ -5,11 +5,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 import torch
 
 from clips import ramp_clip, translating_clip
-from edr.representations import DVSCamera, DVSSimulator, events_to_frames
+from edr.representations import DVSCamera, DVSSimulator
 from edr.representations.dvs import EVENT_DTYPE
 
 
@@ -57,23 +56,6 @@ def test_mismatch_is_seeded_and_noise_fires_on_a_still_scene() -> None:
     noisy = DVSSimulator(shot_noise_hz=50.0).simulate(still)
     # 64 pixels x 50 Hz x 0.4 s = 1,280 expected noise events.
     assert 1_000 < len(noisy) < 1_600 and set(np.unique(noisy["p"])) == {0, 1}
-
-
-def test_events_to_frames_counts_every_event() -> None:
-    events = np.zeros(6, EVENT_DTYPE)
-    events["t"] = [0, 10, 20, 30, 40, 59]
-    events["x"] = [0, 1, 2, 0, 1, 2]
-    events["y"] = [0, 0, 1, 1, 0, 0]
-    events["p"] = [1, 0, 1, 1, 0, 0]
-    frames = events_to_frames(events, 2, 3, time_window=20)
-    assert frames.shape == (3, 2, 2, 3) and frames.sum() == 6
-    assert frames[0, 1, 0, 0] == 1 and frames[0, 0, 0, 1] == 1
-    assert events_to_frames(events, 2, 3, n_time_bins=2).sum(axis=(1, 2, 3)).tolist() == [3, 3]
-    assert events_to_frames(events, 2, 3, event_count=4).shape[0] == 2
-    with pytest.raises(ValueError, match="exactly one"):
-        events_to_frames(events, 2, 3)
-    with pytest.raises(ValueError, match="outside"):
-        events_to_frames(events, 1, 1, time_window=10)
 
 
 def test_dvs_camera_on_off_order_matches_edr() -> None:

@@ -143,45 +143,120 @@ class DVSSimulator:
         return events
 
 
+def check_events(events: np.ndarray, height: int, width: int) -> np.ndarray:
+    """``events`` with polarity as 0 (OFF) / 1 (ON); ``ValueError`` naming the field otherwise.
+
+    Accepted: a structured array with fields ``t``, ``x``, ``y``, ``p`` (tonic's names and
+    ``EVENT_DTYPE``); polarity 0/1, -1/1 (-1 is OFF) or bool; ``x`` in [0, width), ``y`` in
+    [0, height); ``t`` sorted (``np.sort(events, order="t")`` sorts a list that is not).
+    """
+    names = getattr(events.dtype, "names", None) or ()
+    missing = [f for f in ("t", "x", "y", "p") if f not in names]
+    if missing:
+        raise ValueError(f"events need the fields t, x, y, p; missing {missing}")
+    for field, size, axis in (("x", width, "width"), ("y", height, "height")):
+        if len(events) and (events[field].min() < 0 or events[field].max() >= size):
+            raise ValueError(
+                f"events {field} must lie in [0, {size}) (the sensor's {axis}); got "
+                f"{events[field].min()}..{events[field].max()}"
+            )
+    polarities = set(np.unique(events["p"]).tolist())
+    if not polarities <= {0, 1} and not polarities <= {-1, 1}:
+        raise ValueError(f"events p must be 0/1, -1/1 or bool; got the values {sorted(polarities)}")
+    if len(events) > 1 and (np.diff(events["t"]) < 0).any():
+        raise ValueError('events t must be sorted; np.sort(events, order="t") sorts them')
+    if -1 in polarities:
+        events = events.copy()
+        events["p"] = events["p"] > 0
+    return events
+
+
+def _windows(
+    events: np.ndarray,
+    time_window: float | None,
+    event_count: int | None,
+    n_time_bins: int | None,
+    n_event_bins: int | None,
+    overlap: float,
+    include_incomplete: bool,
+    start_time: float | None,
+    end_time: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) event indices of every frame, as tonic's slicers cut them."""
+    t = events["t"]
+    n = len(events)
+    round_n = np.ceil if include_incomplete else np.floor
+    if time_window is not None:
+        stride = time_window - overlap
+        if stride <= 0:
+            raise ValueError(
+                f"overlap ({overlap}) must be smaller than time_window ({time_window})"
+            )
+        start = t[0] if start_time is None else start_time
+        end = t[-1] if end_time is None else end_time
+        frames = max(int(round_n((end - start - time_window) / stride) + 1), 1)
+        begins = np.arange(frames) * stride + start
+        return np.searchsorted(t, begins), np.searchsorted(t, begins + time_window)
+    if event_count is not None:
+        stride = event_count - overlap
+        if stride <= 0:
+            raise ValueError(
+                f"overlap ({overlap}) must be smaller than event_count ({event_count})"
+            )
+        count = min(event_count, n)
+        frames = int(round_n((n - count) / stride) + 1)
+        begins = (np.arange(frames) * stride).astype(np.int64)
+        return begins, begins + count
+    if not 0 <= overlap < 1:
+        raise ValueError(f"overlap is a fraction of a bin here: 0 <= overlap < 1, got {overlap}")
+    if n_time_bins is not None:
+        window = (t[-1] - t[0]) // n_time_bins * (1 + overlap)
+        begins = np.arange(n_time_bins) * window * (1 - overlap) + t[0]
+        return np.searchsorted(t, begins), np.searchsorted(t, begins + window)
+    count = int(n // n_event_bins * (1 + overlap))
+    begins = np.arange(n_event_bins) * int(count * (1 - overlap))
+    return begins, begins + count
+
+
 def events_to_frames(
     events: np.ndarray,
     height: int,
     width: int,
     *,
     time_window: float | None = None,
-    n_time_bins: int | None = None,
     event_count: int | None = None,
-    t_start: float | None = None,
-    t_end: float | None = None,
+    n_time_bins: int | None = None,
+    n_event_bins: int | None = None,
+    overlap: float = 0.0,
+    include_incomplete: bool = False,
+    start_time: float | None = None,
+    end_time: float | None = None,
+    dtype: np.dtype | type = np.int16,
 ) -> np.ndarray:
-    """Bin events to count frames (N, 2, H, W) float32, channel = polarity (0 OFF, 1 ON).
+    """Bin events to count frames (N, 2, H, W), channel = polarity (0 OFF, 1 ON), as
+    ``tonic.transforms.ToFrame(sensor_size=(width, height, 2), ...)`` does, frame for frame.
 
-    Like ``tonic.transforms.ToFrame``: exactly one of ``time_window`` (microseconds per frame),
-    ``n_time_bins`` (equal slices of [t_start, t_end)) or ``event_count`` (events per frame).
-    ``t_start``/``t_end`` default to the first event and one past the last.
+    Exactly one of ``time_window`` (timestamp units per frame), ``event_count`` (events per
+    frame), ``n_time_bins`` or ``n_event_bins``. ``overlap``: in timestamp units, events, or (for
+    the bin counts) a fraction of a bin. A last, incomplete window or count is dropped unless
+    ``include_incomplete``; windows start at ``start_time`` (default: the first event) and end
+    by ``end_time`` (default: the last event); an event on a window's end belongs to the next.
+    ``dtype``: tonic's int16 by default. Events: see :func:`check_events`.
     """
-    if sum(v is not None for v in (time_window, n_time_bins, event_count)) != 1:
-        raise ValueError("give exactly one of time_window, n_time_bins, event_count")
-    if len(events) and (events["x"].max() >= width or events["y"].max() >= height):
-        raise ValueError(f"events fall outside the {width}x{height} sensor")
-    if event_count is not None:
-        n_frames = max(1, -(-len(events) // event_count))
-        index = np.arange(len(events)) // event_count
-    else:
-        start = t_start if t_start is not None else float(events["t"][0]) if len(events) else 0.0
-        end = t_end if t_end is not None else float(events["t"][-1]) + 1 if len(events) else 1.0
-        if end <= start:
-            raise ValueError(f"empty time range [{start}, {end})")
-        if n_time_bins is not None:
-            n_frames, window = n_time_bins, (end - start) / n_time_bins
-        else:
-            window = float(time_window)
-            n_frames = max(1, int(np.ceil((end - start) / window)))
-        index = np.floor((events["t"] - start) / window).astype(np.int64)
-    frames = np.zeros((n_frames, 2, height, width), np.float32)
-    keep = (index >= 0) & (index < n_frames)
-    e = events[keep]
-    np.add.at(frames, (index[keep], e["p"].astype(np.int64), e["y"], e["x"]), 1.0)
+    chosen = [v for v in (time_window, event_count, n_time_bins, n_event_bins) if v is not None]
+    if len(chosen) != 1:
+        raise ValueError("give exactly one of time_window, event_count, n_time_bins, n_event_bins")
+    if chosen[0] <= 0:
+        raise ValueError(f"the window, count or number of bins must be positive, got {chosen[0]}")
+    events = check_events(events, height, width)
+    if not len(events) and (time_window is None or start_time is None or end_time is None):
+        raise ValueError("no events: binning them needs time_window, start_time and end_time")
+    begins, ends = _windows(events, time_window, event_count, n_time_bins, n_event_bins,
+                            overlap, include_incomplete, start_time, end_time)  # fmt: skip
+    frames = np.zeros((len(begins), 2, height, width), dtype)
+    for i, (a, b) in enumerate(zip(begins, ends, strict=True)):
+        e = events[a:b]
+        np.add.at(frames, (i, e["p"].astype(np.int64), e["y"], e["x"]), 1)
     return frames
 
 
@@ -221,8 +296,8 @@ class DVSCamera(Representation):
         for i in range(b):
             events = self.simulator.simulate(gray[i])
             binned = events_to_frames(
-                events, h, w, time_window=self.simulator.frame_us, t_start=0.0,
-                t_end=(t - 1) * self.simulator.frame_us,
+                events, h, w, time_window=self.simulator.frame_us, start_time=0.0,
+                end_time=(t - 1) * self.simulator.frame_us, dtype=np.float32,
             )  # fmt: skip
             out[i] = binned[:, ::-1]  # tonic's [OFF, ON] -> EDR's [ON, OFF]
         return torch.from_numpy(out).to(frames.device)

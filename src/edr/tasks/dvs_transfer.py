@@ -35,8 +35,9 @@ def _event_clip(
     """Events -> (frames, 2, crop, crop) float32: [ON, OFF] counts per frame interval."""
     n_bins = max(1, int(np.ceil((int(events["t"].max()) + 1) / frame_us))) if len(events) else 1
     binned = events_to_frames(
-        events, height, width, time_window=frame_us, t_start=0.0, t_end=n_bins * frame_us
-    )
+        events, height, width, time_window=frame_us, start_time=0.0, end_time=n_bins * frame_us,
+        dtype=np.float32,
+    )  # fmt: skip
     clip = torch.from_numpy(binned[:, ::-1].copy())  # tonic's [OFF, ON] -> EDR's [ON, OFF]
     return resize_clip(take_frames(clip, 0, frames), crop)
 
