@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import importlib.util
 import inspect
+import math
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
-from hydra.utils import get_object
 from omegaconf import DictConfig, ListConfig
 
 
@@ -23,17 +23,20 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class Range:
-    """A number's allowed interval; ``open`` excludes the low end."""
+    """A finite number's allowed interval; ``open`` excludes the low end, ``open_high`` the high."""
 
     low: float | None = None
     high: float | None = None
     open: bool = False
+    open_high: bool = False
 
     def problem(self, value: float) -> str | None:
+        if not math.isfinite(value):
+            return "a finite number"
         if self.low is not None and (value <= self.low if self.open else value < self.low):
             return f"a number {'>' if self.open else '>='} {self.low}"
-        if self.high is not None and value > self.high:
-            return f"a number <= {self.high}"
+        if self.high is not None and (value >= self.high if self.open_high else value > self.high):
+            return f"a number {'<' if self.open_high else '<='} {self.high}"
         return None
 
 
@@ -52,6 +55,7 @@ NonNegativeInt = Annotated[int, Range(0)]
 PositiveFloat = Annotated[float, Range(0, open=True)]
 NonNegativeFloat = Annotated[float, Range(0)]
 Fraction = Annotated[float, Range(0, 1, open=True)]
+BelowOne = Annotated[float, Range(0, 1, open_high=True)]  # [0, 1)
 
 # The torchrl loggers a task can write to, and the package each needs.
 LOGGER_PACKAGES = {"csv": None, "tensorboard": "tensorboard", "mlflow": "mlflow", "wandb": "wandb"}
@@ -93,6 +97,12 @@ def _describe(hint: Any) -> str:
     return names.get(hint, getattr(hint, "__name__", str(hint)))
 
 
+def _is_list_hint(hint: Any) -> bool:
+    if typing.get_origin(hint) is Annotated:
+        hint = typing.get_args(hint)[0]
+    return typing.get_origin(hint) in (list, tuple, Sequence) or hint in (list, tuple)
+
+
 def mismatch(value: Any, hint: Any) -> str | None:
     """What ``value`` should have been to match ``hint``, or None if it matches."""
     value = _plain(value)
@@ -110,8 +120,14 @@ def mismatch(value: Any, hint: Any) -> str | None:
     if hint is type(None):
         return None if value is None else "null"
     if origin in (typing.Union, types.UnionType):
-        results = [mismatch(value, a) for a in args if value is None or a is not type(None)]
-        return None if any(r is None for r in results) else " or ".join(dict.fromkeys(results))
+        arms = [a for a in args if value is None or a is not type(None)]
+        results = [mismatch(value, a) for a in arms]
+        if any(r is None for r in results):
+            return None
+        # Say what the arm of the value's own kind (a list, or a single value) expected.
+        same_kind = [r for a, r in zip(arms, results, strict=True)
+                     if _is_list_hint(a) == isinstance(value, list | tuple)]  # fmt: skip
+        return " or ".join(dict.fromkeys(same_kind or results))
     if origin is Literal:
         return None if value in args else _describe(hint)
     if hint is bool:
@@ -130,7 +146,7 @@ def mismatch(value: Any, hint: Any) -> str | None:
             return f"a list of {len(args)} values"
         item = args[0] if args else Any
         bad = next((m for v in value if (m := mismatch(v, item))), None)
-        return f"a list of {bad.removeprefix('a ').removeprefix('an ')}s" if bad else None
+        return f"a list whose values are each {bad}" if bad else None
     if origin in (dict, Mapping) or hint is dict:
         return None if isinstance(value, Mapping | DictConfig) else "a mapping"
     return None  # objects the config builds (a representation, a callable): checked by their node
@@ -144,8 +160,20 @@ def _hints(target: Any) -> dict[str, Any]:
         return {}
 
 
+def check_arguments(owner: object, values: Mapping[str, Any]) -> None:
+    """``ValueError`` naming the first argument of ``type(owner).__init__`` whose value does not
+    match its annotation: how a class checks its constructor's arguments (pass ``locals()``)."""
+    cls = type(owner)
+    hints = _hints(cls)
+    for name, value in values.items():
+        if name in hints and (expected := mismatch(value, hints[name])):
+            raise ValueError(f"{cls.__name__}: {name}={_plain(value)!r}: expected {expected}")
+
+
 def check_node(node: DictConfig, where: str) -> None:
     """Check every value of a ``_target_`` node (and the nodes inside it) against its target."""
+    from hydra.utils import get_object  # only the entry point's check needs Hydra
+
     target = get_object(node["_target_"])
     hints = _hints(target)
     for key, value in node.items():

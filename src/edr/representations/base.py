@@ -155,17 +155,20 @@ def _check_channels_and_values(x: torch.Tensor, *, channel_dim: int, name: str) 
         return
     if not x.is_floating_point():
         raise ValueError(f"{name} must be uint8 or floating point, got {x.dtype}")
-    # One reduction catches both: min() is NaN if any element is NaN.
-    low = x.detach().min()
-    if torch.isnan(low):
+    # One pass finds both ends; NaN anywhere makes both NaN.
+    low, high = torch.aminmax(x.detach())
+    if torch.isnan(low) or torch.isnan(high):
         raise ValueError(f"{name} contains NaN")
+    if torch.isinf(low) or torch.isinf(high):
+        raise ValueError(f"{name} contains inf; intensities must be finite")
     if low < 0:
         raise ValueError(f"{name} has negative intensities (min {low.item():.4g}); expected >= 0")
 
 
 def to_float(x: torch.Tensor) -> torch.Tensor:
-    """uint8 -> float32 on the same 0..255 scale; float stays as it is."""
-    return x.float() if x.dtype == torch.uint8 else x
+    """uint8, float16, bfloat16 -> float32 on the same scale; float32 and float64 stay as they are
+    (a representation returns float32 whatever it computed in; see each class)."""
+    return x if x.dtype in (torch.float32, torch.float64) else x.float()
 
 
 def to_gray(x: torch.Tensor, channel_dim: int) -> torch.Tensor:

@@ -25,6 +25,7 @@ from edr.representations.base import (
     on_off_picture,
     to_gray,
 )
+from edr.validate import NonNegativeFloat, PositiveFloat, check_arguments
 
 EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
@@ -75,19 +76,16 @@ class DVSSimulator:
 
     def __init__(
         self,
-        threshold_on: float = 0.2,
-        threshold_off: float = 0.2,
-        mismatch: float = 0.0,
-        refractory_us: float = 0.0,
-        shot_noise_hz: float = 0.0,
-        fps: float = 25.0,
-        eps: float = 1.0,
+        threshold_on: PositiveFloat = 0.2,
+        threshold_off: PositiveFloat = 0.2,
+        mismatch: NonNegativeFloat = 0.0,
+        refractory_us: NonNegativeFloat = 0.0,
+        shot_noise_hz: NonNegativeFloat = 0.0,
+        fps: PositiveFloat = 25.0,
+        eps: PositiveFloat = 1.0,
         seed: int = 0,
     ) -> None:
-        if threshold_on <= 0 or threshold_off <= 0:
-            raise ValueError("contrast thresholds must be positive")
-        if min(mismatch, refractory_us, shot_noise_hz) < 0 or fps <= 0 or eps <= 0:
-            raise ValueError("mismatch, refractory_us, shot_noise_hz must be >= 0; fps, eps > 0")
+        check_arguments(self, locals())
         self.threshold_on, self.threshold_off = threshold_on, threshold_off
         self.mismatch, self.refractory_us, self.shot_noise_hz = (
             mismatch,

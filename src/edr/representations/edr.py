@@ -31,11 +31,12 @@ from edr.representations.base import (
     check_clip,
     check_frame,
     on_off_picture,
-    to_float,
     to_gray,
 )
+from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, check_arguments
 
-Scalars = float | Sequence[float]
+OUT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16,
+              "float64": torch.float64}  # fmt: skip
 
 
 class EDRState(NamedTuple):
@@ -44,7 +45,7 @@ class EDRState(NamedTuple):
     ema: torch.Tensor  # (B, C, K, H, W) float32, intensities + eps
 
 
-def _per_timescale(value: Scalars, k: int, name: str) -> torch.Tensor:
+def _per_timescale(value: float | Sequence[float], k: int, name: str) -> torch.Tensor:
     """A scalar or one value per timescale -> (k,) float32."""
     values = [float(value)] * k if isinstance(value, int | float) else [float(v) for v in value]
     if len(values) != k:
@@ -58,6 +59,13 @@ class EDR(Representation):
     ``forward``: (B, T, C, H, W) -> (B, T, C' * 2 * K', H, W), C' = 1 if ``color="gray"``
     else C, K' = 1 if ``combine="sum"`` else K. ``step``: the same, one frame at a time.
     Under ``torch.no_grad()`` on the CPU (uint8 or float32 input) both use a fused numba kernel.
+
+    Arguments (each checked; a bad one raises ``ValueError`` naming it): ``half_lives`` > 0
+    frames, one number (one timescale) or one per timescale; ``beta`` > 0 (a ``beta`` <= 0 would
+    swap ON and OFF or erase them, so it is refused); ``nu_on`` >= 0 and 0 <= ``nu_off`` < 1, one
+    or one per timescale; ``eps`` > 0, the offset that keeps ratio and log finite at I = 0 on
+    every path and in the gradients; ``out_dtype``: the output's dtype on every path and device
+    (float32 unless asked; the EMA state is float32, float64 with ``out_dtype="float64"``).
     """
 
     features = Features(
@@ -67,32 +75,26 @@ class EDR(Representation):
 
     def __init__(
         self,
-        half_lives: Sequence[float] = (3.8,),
-        beta: Scalars = 1.0,
-        nu_on: Scalars = 0.05,
-        nu_off: Scalars = 0.05,
+        half_lives: PositiveFloat | Sequence[PositiveFloat] = (3.8,),
+        beta: PositiveFloat | Sequence[PositiveFloat] = 1.0,
+        nu_on: NonNegativeFloat | Sequence[NonNegativeFloat] = 0.05,
+        nu_off: BelowOne | Sequence[BelowOne] = 0.05,
         threshold: Literal["soft", "hard"] = "soft",
         return_form: Literal["ratio", "log"] = "ratio",
         combine: Literal["separate", "sum"] = "separate",
-        eps: float = 1.0,
+        eps: PositiveFloat = 1.0,
         learnable: bool = False,
         color: Literal["keep", "gray"] = "keep",
         fast: bool = True,
+        out_dtype: Literal["float32", "float16", "bfloat16", "float64"] = "float32",
     ) -> None:
         super().__init__()
-        half_lives = [float(h) for h in half_lives]
-        if not half_lives or min(half_lives) <= 0:
-            raise ValueError(f"half_lives must be positive frame counts, got {half_lives}")
-        for arg, value, allowed in (
-            ("threshold", threshold, ("soft", "hard")),
-            ("return_form", return_form, ("ratio", "log")),
-            ("combine", combine, ("separate", "sum")),
-            ("color", color, ("keep", "gray")),
-        ):
-            if value not in allowed:
-                raise ValueError(f"{arg} must be one of {allowed}, got {value!r}")
-        if eps < 0:
-            raise ValueError(f"eps must be >= 0, got {eps}")
+        check_arguments(self, locals())
+        half_lives = (
+            [float(half_lives)] if isinstance(half_lives, int | float) else list(half_lives)
+        )
+        if not half_lives:
+            raise ValueError("EDR: half_lives is empty; give at least one half-life")
         k = len(half_lives)
         k_out = 1 if combine == "sum" else k
         if combine == "sum" and not (
@@ -101,8 +103,6 @@ class EDR(Representation):
             raise ValueError('combine="sum" thresholds once: nu_on and nu_off must be scalars')
         nu_on_t = _per_timescale(nu_on, k_out, "nu_on")
         nu_off_t = _per_timescale(nu_off, k_out, "nu_off")
-        if nu_on_t.min() < 0 or nu_off_t.min() < 0 or nu_off_t.max() >= 1:
-            raise ValueError(f"need nu_on >= 0 and 0 <= nu_off < 1, got {nu_on}, {nu_off}")
 
         self.threshold, self.return_form, self.combine, self.color = (
             threshold,
@@ -111,6 +111,8 @@ class EDR(Representation):
             color,
         )
         self.eps, self.learnable, self.fast = float(eps), learnable, fast
+        self.out_dtype = OUT_DTYPES[out_dtype]
+        self._compute_dtype = torch.float64 if out_dtype == "float64" else torch.float32
         self.k = k
         self._param_cache: tuple[tuple, tuple] | None = None
         log_tau = torch.tensor([math.log(h) for h in half_lives], dtype=torch.float32)
@@ -159,7 +161,7 @@ class EDR(Representation):
         if self._can_fuse(frames):
             b, t, _, h, w = frames.shape
             ema = torch.empty((b, self._channels(frames.shape[2]), self.k, h, w))
-            return self._fused(frames, ema, np.ones(b, np.bool_))
+            return self._fused(frames, ema, ema, np.ones(b, np.bool_))
         state, outs = None, []
         for t in range(frames.shape[1]):
             out_t, state = self.step(frames[:, t], state)
@@ -171,11 +173,14 @@ class EDR(Representation):
         frame: torch.Tensor,
         state: EDRState | None = None,
         reset: torch.Tensor | None = None,
+        inplace: bool = False,
     ) -> tuple[torch.Tensor, EDRState]:
         """One frame (B, C, H, W) -> (events (B, C'*2*K', H, W), new state).
 
         ``state=None`` starts every row from this frame; ``reset`` (B,) bool restarts the rows
-        where it is set. On the fused path the state's tensor is updated in place and returned.
+        where it is set. The state passed in is left as it was (keep it to branch or replay),
+        unless ``inplace=True``: then the fused path writes the new EMA into its tensor and
+        returns it, saving an allocation (for callers that own their buffers).
         """
         check_frame(frame)
         b, c, h, w = frame.shape
@@ -190,12 +195,13 @@ class EDR(Representation):
                 )
         if self._can_fuse(frame):
             if state is None:
-                ema = torch.empty(shape, dtype=torch.float32)
+                ema_in = ema = torch.empty(shape, dtype=torch.float32)
                 restart = np.ones(b, np.bool_)
             else:
-                ema = state.ema.detach().to(torch.float32).contiguous()
+                ema_in = state.ema.detach().to(torch.float32).contiguous()
+                ema = ema_in if inplace else torch.empty(shape, dtype=torch.float32)
                 restart = reset.cpu().numpy() if reset is not None else np.zeros(b, np.bool_)
-            out = self._fused(frame.unsqueeze(1), ema, restart)
+            out = self._fused(frame.unsqueeze(1), ema_in, ema, restart)
             return out[:, 0], EDRState(ema)
         return self._step_torch(frame, state, reset)
 
@@ -204,9 +210,9 @@ class EDR(Representation):
         return 1 if self.color == "gray" else in_channels
 
     def _intensity(self, frame: torch.Tensor) -> torch.Tensor:
-        """(B, C, H, W) -> (B, C', H, W) float intensities + eps."""
-        x = to_gray(frame, channel_dim=1) if self.color == "gray" else to_float(frame)
-        return x + self.eps
+        """(B, C, H, W) -> (B, C', H, W) intensities + eps, in the compute dtype."""
+        x = frame.to(self._compute_dtype)
+        return (to_gray(x, channel_dim=1) if self.color == "gray" else x) + self.eps
 
     def _step_torch(
         self, frame: torch.Tensor, state: EDRState | None, reset: torch.Tensor | None
@@ -216,9 +222,9 @@ class EDR(Representation):
         if state is None:
             prev = intensity.expand(b, c, self.k, h, w)
         elif reset is not None:
-            prev = torch.where(reset.view(b, 1, 1, 1, 1), intensity, state.ema)
+            prev = torch.where(reset.view(b, 1, 1, 1, 1), intensity, state.ema.to(intensity))
         else:
-            prev = state.ema
+            prev = state.ema.to(intensity)
         alpha = self.alpha.to(intensity).view(1, 1, self.k, 1, 1)
         ema = prev + alpha * (intensity - prev)  # (B, C', K, H, W)
         ratio = intensity / ema
@@ -236,13 +242,14 @@ class EDR(Representation):
         else:
             on, off = torch.relu(response - on_th), torch.relu(off_th - response)
         events = torch.stack((on, off), dim=3)  # (B, C', K', 2, H, W)
-        return events.reshape(b, -1, h, w), EDRState(ema)
+        return events.reshape(b, -1, h, w).to(self.out_dtype), EDRState(ema)
 
     def _can_fuse(self, x: torch.Tensor) -> bool:
         needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.learnable)
         return (
             self.fast
             and not needs_grad
+            and self._compute_dtype == torch.float32
             and x.device.type == "cpu"
             and x.dtype in (torch.uint8, torch.float32)
         )
@@ -258,8 +265,11 @@ class EDR(Representation):
             self._param_cache = (key, arrays)
         return self._param_cache[1]
 
-    def _fused(self, frames: torch.Tensor, ema: torch.Tensor, restart: np.ndarray) -> torch.Tensor:
-        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``."""
+    def _fused(
+        self, frames: torch.Tensor, ema_in: torch.Tensor, ema: torch.Tensor, restart: np.ndarray
+    ) -> torch.Tensor:
+        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``; the
+        EMA continues from ``ema_in`` and ends in ``ema`` (the same tensor: in place)."""
         b, t, c_in, h, w = frames.shape
         c, k = ema.shape[1], ema.shape[2]
         k_out = 1 if self.combine == "sum" else k
@@ -284,11 +294,13 @@ class EDR(Representation):
             self.return_form == "log",
             self.threshold == "hard",
             self.combine == "sum",
+            ema_in.view(b, c, k, h * w).numpy(),
+            ema_in is not ema,
             ema.view(b, c, k, h * w).numpy(),
             restart,
             out.view(b, t, c, k_out, 2, h * w).numpy(),
         )
-        return out
+        return out if self.out_dtype == torch.float32 else out.to(self.out_dtype)
 
     def extra_repr(self) -> str:
         taus = [round(v, 3) for v in self.half_lives.tolist()]

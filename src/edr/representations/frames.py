@@ -9,6 +9,7 @@ import torch
 
 from edr.representations import kernels
 from edr.representations.base import Features, Representation, check_clip, to_float, to_gray
+from edr.validate import PositiveFloat, check_arguments
 
 
 class FDR(Representation):
@@ -19,10 +20,11 @@ class FDR(Representation):
 
     features = Features("1 frame", "no", "no", "no", "no", "no")
 
-    def __init__(self, color: Literal["keep", "gray"] = "keep", scale: float = 1 / 255) -> None:
+    def __init__(
+        self, color: Literal["keep", "gray"] = "keep", scale: PositiveFloat = 1 / 255
+    ) -> None:
         super().__init__()
-        if color not in ("keep", "gray"):
-            raise ValueError(f"color must be 'keep' or 'gray', got {color!r}")
+        check_arguments(self, locals())
         self.color, self.scale = color, float(scale)
 
     def out_channels(self, in_channels: int) -> int:
@@ -36,7 +38,7 @@ class FDR(Representation):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, name="frames")
         x = to_gray(frames, channel_dim=2) if self.color == "gray" else to_float(frames)
-        return x * self.scale
+        return (x * self.scale).float()
 
 
 class GrayDiff(Representation):
@@ -48,8 +50,9 @@ class GrayDiff(Representation):
 
     features = Features("2 frames", "no", "no", "no (one signed channel)", "no", "no")
 
-    def __init__(self, scale: float = 1 / 255, fast: bool = True) -> None:
+    def __init__(self, scale: PositiveFloat = 1 / 255, fast: bool = True) -> None:
         super().__init__()
+        check_arguments(self, locals())
         self.scale, self.fast = float(scale), fast
 
     def out_channels(self, in_channels: int) -> int:
@@ -72,7 +75,7 @@ class GrayDiff(Representation):
             )
             return out
         gray = to_gray(frames, channel_dim=2)  # (B, T, 1, H, W)
-        return self.scale * (gray[:, 1:] - gray[:, :-1])
+        return (self.scale * (gray[:, 1:] - gray[:, :-1])).float()
 
 
 class RGBDiff(Representation):
@@ -80,8 +83,9 @@ class RGBDiff(Representation):
 
     features = Features("2 frames", "no", "no", "no (signed channels)", "no", "no")
 
-    def __init__(self, scale: float = 1 / 255) -> None:
+    def __init__(self, scale: PositiveFloat = 1 / 255) -> None:
         super().__init__()
+        check_arguments(self, locals())
         self.scale = float(scale)
 
     def out_channels(self, in_channels: int) -> int:
@@ -93,4 +97,4 @@ class RGBDiff(Representation):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, min_frames=2, name="frames")
         x = to_float(frames)
-        return self.scale * (x[:, 1:] - x[:, :-1])
+        return (self.scale * (x[:, 1:] - x[:, :-1])).float()

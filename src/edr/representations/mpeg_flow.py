@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from edr.representations.base import Features, FlowRepresentation, check_clip, to_float
+from edr.validate import check_arguments
 
 
 def rasterize_motion_vectors(mvs: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -85,6 +86,7 @@ class MPEGFlow(FlowRepresentation):
 
     def __init__(self, codec: str = "mpeg4") -> None:
         super().__init__()
+        check_arguments(self, locals())
         self.codec = codec
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:

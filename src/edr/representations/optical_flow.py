@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from edr.representations.base import FlowRepresentation, check_clip, to_gray
+from edr.validate import Fraction, PositiveFloat, PositiveInt, check_arguments
 
 
 def gray_uint8(frames: torch.Tensor) -> np.ndarray:
@@ -44,14 +45,15 @@ class Farneback(OpticalFlow):
 
     def __init__(
         self,
-        pyr_scale: float = 0.5,
-        levels: int = 3,
-        winsize: int = 15,
-        iterations: int = 3,
-        poly_n: int = 5,
-        poly_sigma: float = 1.2,
+        pyr_scale: Fraction = 0.5,
+        levels: PositiveInt = 3,
+        winsize: PositiveInt = 15,
+        iterations: PositiveInt = 3,
+        poly_n: PositiveInt = 5,
+        poly_sigma: PositiveFloat = 1.2,
     ) -> None:
         super().__init__()
+        check_arguments(self, locals())
         self.params = (pyr_scale, levels, winsize, iterations, poly_n, poly_sigma, 0)
 
     def _pair(self, prev: np.ndarray, nxt: np.ndarray) -> np.ndarray:
@@ -61,8 +63,15 @@ class Farneback(OpticalFlow):
 class TVL1(OpticalFlow):
     """Dual TV-L1 flow (Zach et al.), ``cv2.optflow.DualTVL1OpticalFlow`` from opencv-contrib."""
 
-    def __init__(self, tau: float = 0.25, lambda_: float = 0.15, scales: int = 5, warps: int = 5):
+    def __init__(
+        self,
+        tau: PositiveFloat = 0.25,
+        lambda_: PositiveFloat = 0.15,
+        scales: PositiveInt = 5,
+        warps: PositiveInt = 5,
+    ) -> None:
         super().__init__()
+        check_arguments(self, locals())
         if not hasattr(cv2, "optflow"):
             raise RuntimeError(
                 "TV-L1 needs cv2.optflow, which only opencv-contrib-python-headless ships; "

@@ -40,7 +40,7 @@ class EDRObservation(gym.ObservationWrapper):
         frame = torch.from_numpy(np.ascontiguousarray(observation))
         frame = frame.unsqueeze(0) if frame.dim() == 2 else frame.permute(2, 0, 1)  # (C, H, W)
         with torch.no_grad():
-            events, self._state = self.edr.step(frame.unsqueeze(0), self._state)
+            events, self._state = self.edr.step(frame.unsqueeze(0), self._state, inplace=True)
         return events[0].numpy()
 
 

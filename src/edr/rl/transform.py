@@ -122,7 +122,7 @@ class EDRTransform(_PerEnvStream):
         return events
 
     def _advance(self, x: torch.Tensor) -> torch.Tensor:
-        events, self._state = self.edr.step(x, self._state)
+        events, self._state = self.edr.step(x, self._state, inplace=True)  # its own buffer
         return events
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
