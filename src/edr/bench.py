@@ -72,11 +72,12 @@ def time_call(fn: Callable[[], object], repeats: int, warmup: int = 3) -> float:
     return statistics.median(times)
 
 
-def stream(edr: EDR, frames: torch.Tensor) -> None:
-    """Feed (B, T, C, H, W) through ``edr.step`` one frame at a time, as an agent would."""
+def stream(edr: EDR, frames: torch.Tensor, inplace: bool = False) -> None:
+    """Feed (B, T, C, H, W) through ``edr.step`` one frame at a time, as an agent would; with
+    ``inplace``, into one state buffer, as the RL transform does."""
     state: EDRState | None = None
     for t in range(frames.shape[1]):
-        _, state = edr.step(frames[:, t], state)
+        _, state = edr.step(frames[:, t], state, inplace=inplace)
 
 
 @dataclass
@@ -110,6 +111,13 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
             t,
             size,
         ),
+        Job(
+            "EDR K=1 soft gray, streaming",
+            "fused kernel, step(inplace=True) per frame",
+            lambda: stream(gray, clip, inplace=True),
+            t,
+            size,
+        ),
         whole("EDR K=3 soft gray", "fused numba kernel", EDR(half_lives=K3, color="gray")),
         whole("EDR K=1 soft RGB", "fused numba kernel", EDR()),
         whole("EDR K=1 soft gray", "torch ops (autograd path)", EDR(color="gray", fast=False)),
@@ -129,8 +137,8 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
         whole("TV-L1 flow", "OpenCV contrib", TVL1(), few),
         Job(
             "EDR K=1 soft gray, Atari batch",
-            f"fused kernel, step() per frame, {atari.shape[0]} envs",
-            lambda: stream(gray, atari),
+            f"fused kernel, step(inplace=True) per frame, {atari.shape[0]} envs",
+            lambda: stream(gray, atari, inplace=True),
             atari.shape[0] * atari.shape[1],
             f"{atari.shape[0]} x 84x84",
         ),

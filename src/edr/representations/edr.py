@@ -161,7 +161,7 @@ class EDR(Representation):
         if self._can_fuse(frames):
             b, t, _, h, w = frames.shape
             ema = torch.empty((b, self._channels(frames.shape[2]), self.k, h, w))
-            return self._fused(frames, ema, ema, np.ones(b, np.bool_))
+            return self._fused(frames, ema, np.ones(b, np.bool_))
         state, outs = None, []
         for t in range(frames.shape[1]):
             out_t, state = self.step(frames[:, t], state)
@@ -180,7 +180,7 @@ class EDR(Representation):
         ``state=None`` starts every row from this frame; ``reset`` (B,) bool restarts the rows
         where it is set. The state passed in is left as it was (keep it to branch or replay),
         unless ``inplace=True``: then the fused path writes the new EMA into its tensor and
-        returns it, saving an allocation (for callers that own their buffers).
+        returns it, saving a copy of the state per step (for callers that own their buffers).
         """
         check_frame(frame)
         b, c, h, w = frame.shape
@@ -195,13 +195,14 @@ class EDR(Representation):
                 )
         if self._can_fuse(frame):
             if state is None:
-                ema_in = ema = torch.empty(shape, dtype=torch.float32)
+                ema = torch.empty(shape, dtype=torch.float32)
                 restart = np.ones(b, np.bool_)
             else:
-                ema_in = state.ema.detach().to(torch.float32).contiguous()
-                ema = ema_in if inplace else torch.empty(shape, dtype=torch.float32)
+                ema = state.ema.detach().to(torch.float32).contiguous()
+                if not inplace and ema.data_ptr() == state.ema.data_ptr():
+                    ema = ema.clone()  # the caller's state stays as it was
                 restart = reset.cpu().numpy() if reset is not None else np.zeros(b, np.bool_)
-            out = self._fused(frame.unsqueeze(1), ema_in, ema, restart)
+            out = self._fused(frame.unsqueeze(1), ema, restart)
             return out[:, 0], EDRState(ema)
         return self._step_torch(frame, state, reset)
 
@@ -265,11 +266,9 @@ class EDR(Representation):
             self._param_cache = (key, arrays)
         return self._param_cache[1]
 
-    def _fused(
-        self, frames: torch.Tensor, ema_in: torch.Tensor, ema: torch.Tensor, restart: np.ndarray
-    ) -> torch.Tensor:
-        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``; the
-        EMA continues from ``ema_in`` and ends in ``ema`` (the same tensor: in place)."""
+    def _fused(self, frames: torch.Tensor, ema: torch.Tensor, restart: np.ndarray) -> torch.Tensor:
+        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``,
+        carrying the EMA in ``ema`` (updated in place)."""
         b, t, c_in, h, w = frames.shape
         c, k = ema.shape[1], ema.shape[2]
         k_out = 1 if self.combine == "sum" else k
@@ -294,8 +293,6 @@ class EDR(Representation):
             self.return_form == "log",
             self.threshold == "hard",
             self.combine == "sum",
-            ema_in.view(b, c, k, h * w).numpy(),
-            ema_in is not ema,
             ema.view(b, c, k, h * w).numpy(),
             restart,
             out.view(b, t, c, k_out, 2, h * w).numpy(),

@@ -96,22 +96,18 @@ def edr_kernel(
     log_form,
     hard,
     sum_k,
-    ema_in,
-    copy_in,
     ema,
     restart,
     out,
 ):
-    """Run EDR over the frames of ``x``, carrying the EMA in ``ema``.
+    """Run EDR over the frames of ``x``, carrying ``ema`` in place.
 
     x       (B, T, C_in, P), or (B, T, 1, P * C_in) with ``interleaved`` = C_in (0: planar);
             uint8 or float32 intensities without eps
     gray    convert 3 input channels to one luma channel
     alpha, beta  (K,) float32
     on_th, off_th  (K_out,) thresholds already in the domain of ``log_form``
-    ema_in  (B, C, K, P) float32 state the first frame continues; with ``copy_in`` False it is
-            ``ema`` itself (updated in place), else it is only read
-    ema     (B, C, K, P) float32 state after the last frame
+    ema     (B, C, K, P) float32 state, updated in place
     restart (B,) bool: rows whose EMA restarts from the first frame of ``x``
     out     (B, T, C, K_out, 2, P) float32, K_out = 1 if ``sum_k`` else K; last-but-one axis ON, OFF
     """
@@ -126,12 +122,9 @@ def edr_kernel(
         for t in range(n_frames):
             for c in range(n_chan):
                 _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, intensity)
-                if t == 0:
+                if t == 0 and restart[b]:
                     for k in range(n_k):
-                        if restart[b]:
-                            ema[b, c, k, lo : lo + n] = intensity
-                        elif copy_in:  # the chunk is read where it is used: still in cache
-                            ema[b, c, k, lo : lo + n] = ema_in[b, c, k, lo : lo + n]
+                        ema[b, c, k, lo : lo + n] = intensity
                 if sum_k:
                     acc[:] = ZERO
                 for k in range(n_k):
