@@ -67,7 +67,7 @@ def event_camera(
     # ---- every representation ----------------------------------------------------------------
     metrics: dict[str, Any] = {
         "data/source": "real" if video else "generated",
-        "data/video": str(video) if video else f"generated scene (seed {seed})",
+        "data/video": str(video) if video else "generated scene (the seed draws it)",
         "data/fingerprint": fingerprint,
         "data/frames": clip.shape[0],
         "data/size": f"{width}x{height}",
