@@ -142,3 +142,21 @@ def test_black_pixels_are_finite_on_both_paths_and_in_gradients() -> None:
     learnable(clip).sum().backward()
     assert all(math.isfinite(p.grad.abs().sum().item()) for p in learnable.parameters())
     assert np.isfinite(fast.numpy()).all()
+
+
+def test_several_python_threads_may_call_the_fused_kernels_at_once() -> None:
+    """numba's OpenMP layer is thread-safe; the results must not mix."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    clip = torch.randint(0, 256, (2, 6, 3, 16, 20), dtype=torch.uint8)
+    edr = EDR(half_lives=(1.0, 3.8))
+    with torch.no_grad():
+        expected = edr(clip)
+
+        def work(_: int) -> torch.Tensor:
+            with torch.no_grad():
+                return edr(clip)
+
+        with ThreadPoolExecutor(4) as pool:
+            results = list(pool.map(work, range(16)))
+    assert all(torch.equal(r, expected) for r in results)

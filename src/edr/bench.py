@@ -16,8 +16,11 @@ from __future__ import annotations
 import argparse
 import io
 import statistics
+import subprocess
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -89,6 +92,33 @@ class Job:
     call: Callable[[], Any]
     frames: int
     frame_size: str
+    busy_neighbour: bool = False  # time it while another process keeps one core busy
+
+
+@contextmanager
+def busy_neighbour() -> Iterator[None]:
+    """One other process spinning on a core, as a parallel sweep job or a data loader would."""
+    neighbour = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)  # let it get scheduled
+        yield
+    finally:
+        neighbour.kill()
+        neighbour.wait()
+
+
+def on_one_thread(call: Callable[[], Any]) -> Callable[[], Any]:
+    """``call`` with torch (and so the fused kernels) on one thread."""
+
+    def run() -> Any:
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return call()
+        finally:
+            torch.set_num_threads(threads)
+
+    return run
 
 
 def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]:
@@ -121,6 +151,14 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
         whole("EDR K=3 soft gray", "fused numba kernel", EDR(half_lives=K3, color="gray")),
         whole("EDR K=1 soft RGB", "fused numba kernel", EDR()),
         whole("EDR K=1 soft gray", "torch ops (autograd path)", EDR(color="gray", fast=False)),
+        *(
+            Job(f"{name}, busy neighbour", f"fused numba kernel, {threads}", call, t, size, True)
+            for name, rep in (("EDR K=1 soft gray", gray), ("GrayDiff", GrayDiff()))
+            for threads, call in (
+                ("all threads", lambda rep=rep: rep(clip)),
+                ("1 thread", on_one_thread(lambda rep=rep: rep(clip))),
+            )
+        ),
         whole("GrayDiff", "fused numba kernel", GrayDiff()),
         whole("GrayDiff", "torch ops", GrayDiff(fast=False)),
         whole("RGBDiff", "torch ops", RGBDiff()),
@@ -309,7 +347,8 @@ def main(argv: list[str] | None = None) -> None:
         todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari)
         for job in (bar := tqdm(todo, desc="edr-bench", unit="row")):
             bar.set_postfix_str(job.name)
-            seconds = time_call(job.call, repeats, warmup=args.warmup)
+            with busy_neighbour() if job.busy_neighbour else nullcontext():
+                seconds = time_call(job.call, repeats, warmup=args.warmup)
             rows.append(
                 Row(
                     job.name,

@@ -48,6 +48,9 @@ def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
     edr_stream = bench_fps(rows, "EDR K=1 soft gray, streaming")
     gray_diff = bench_fps(rows, "GrayDiff")
     tvl1, farneback = bench_fps(rows, "TV-L1 flow"), bench_fps(rows, "Farneback flow")
+    busy = "EDR K=1 soft gray, busy neighbour"
+    busy_all = bench_fps(rows, busy, "fused numba kernel, all threads")
+    busy_one = bench_fps(rows, busy, "fused numba kernel, 1 thread")
     return [
         "| Ratio | Ours | Paper |",
         "|---|---:|---:|",
@@ -56,6 +59,7 @@ def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
         f"| EDR K=3 / GrayDiff | {_ratio(edr_k3, gray_diff, '.2f')} | — |",
         f"| EDR K=1 / TV-L1 | {_ratio(edr, tvl1, ',.0f')}x | {cite(PUBLISHED_SPEED.get('edr_over_optical_flow'))} |",
         f"| EDR K=1 / Farneback | {_ratio(edr, farneback, ',.0f')}x | — |",
+        f"| EDR K=1, busy neighbour: all threads / 1 thread | {_ratio(busy_all, busy_one, '.2f')} | — |",
     ]
 
 
@@ -78,6 +82,7 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
         "- **Published**: the paper's figures, on its own machine and code; "
         "'—' where we have no published figure to cite.",
         "- fps counts input frames consumed per second (every env of a batch counted).",
+        "- Busy neighbour rows: timed while the bench keeps one other process spinning on a core.",
         "",
         "| Representation | Implementation | Frame size | Frames | Ours (fps) | Published (fps) |",
         "|---|---|---|---:|---:|---:|",
