@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import torch
 
 from edr.atomic import publish_dir
-from edr.data.video import write_video
+from edr.data.fingerprint import files_fingerprint
+from edr.data.video import read_video, write_video
 from edr.validate import PositiveInt
 
 
@@ -51,6 +53,25 @@ def synthetic_scene(
         rgb = np.clip(img[None] * tint[:, None, None], 0, 255)
         out[t] = rgb.astype(np.uint8)
     return torch.from_numpy(out)
+
+
+def video_or_scene(
+    video: str | None, frames: int, height: int, width: int, seed: int
+) -> tuple[torch.Tensor, dict[str, Any]]:
+    """(clip (T, 3, H, W) uint8, its ``data/*`` entries for the run record): ``video`` read and
+    resized to ``width`` x ``height``, or, without one, the generated scene drawn from ``seed``."""
+    if video:
+        clip = read_video(video, max_frames=frames, size=(width, height))
+        label, fingerprint = str(video), files_fingerprint([Path(video)], Path(video).parent)
+    else:
+        clip = synthetic_scene(frames, height, width, seed=seed)
+        label, fingerprint = "generated scene (the seed draws it)", "generated"
+    return clip, {
+        "data/source": "real" if video else "generated",
+        "data/video": label,
+        "data/fingerprint": fingerprint,
+        "data/frames": clip.shape[0],
+    }
 
 
 # ---- generated action videos in the UCF-101 and KTH layouts ----------------------------------

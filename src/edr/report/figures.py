@@ -104,18 +104,26 @@ def fig10_kth_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     )  # fmt: skip
 
 
-def _per_class(done: pd.DataFrame) -> plt.Figure | None:
-    columns = [
-        c for c in done.columns if c.startswith("metrics.eval/per_class/") and done[c].notna().any()
+def _cell_means(
+    done: pd.DataFrame, prefix: str, labels: list[str]
+) -> tuple[list[str], list[tuple[str, np.ndarray]]]:
+    """(the names after ``prefix`` of the metrics these runs have, per cell its label and the
+    mean of each of those metrics over its runs)."""
+    columns = [c for c in done.columns if c.startswith(prefix) and done[c].notna().any()]
+    means = [
+        (label, group[columns].apply(pd.to_numeric, errors="coerce").mean().to_numpy())
+        for label, group in _cells(done, labels)
     ]
-    cells = _cells(done, ["choices.representation"])
-    if not columns or not cells:
+    return [c.removeprefix(prefix) for c in columns], means
+
+
+def _per_class(done: pd.DataFrame) -> plt.Figure | None:
+    classes, cells = _cell_means(done, "metrics.eval/per_class/", ["choices.representation"])
+    if not classes or not cells:
         return None
-    classes = [c.rsplit("/", 1)[1] for c in columns]
     fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes) * len(cells)), 3.5))
     width = 0.8 / len(cells)
-    for k, (label, group) in enumerate(cells):
-        means = group[columns].apply(pd.to_numeric, errors="coerce").mean().to_numpy()
+    for k, (label, means) in enumerate(cells):
         ax.bar(np.arange(len(classes)) + k * width, means, width, label=label)
     ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=60, fontsize=7)
     ax.set(title="Figure 6: per-class accuracy by representation", ylabel="accuracy", ylim=(0, 1))
@@ -154,16 +162,12 @@ def fig7b_dvs_confusion(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
 
 
 def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
-    columns = [
-        c for c in done.columns if c.startswith("metrics.sparsity/") and done[c].notna().any()
-    ]
-    cells = _cells(done, ["choices.backbone", "choices.representation", "scale"])
-    if not columns or not cells:
+    labels = ["choices.backbone", "choices.representation", "scale"]
+    layers, cells = _cell_means(done, "metrics.sparsity/", labels)
+    if not layers or not cells:
         return None
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    layers = [c.removeprefix("metrics.sparsity/") for c in columns]
-    for label, group in cells:
-        values = group[columns].apply(pd.to_numeric, errors="coerce").mean().to_numpy()
+    for label, values in cells:
         ax.plot(range(len(layers)), values, "o-", label=label)
     ax.set_xticks(range(len(layers)), layers, rotation=60, fontsize=7)
     ax.set(title="Figure 11: fraction of zero activations per layer", ylabel="zeros", ylim=(0, 1))

@@ -18,8 +18,7 @@ from typing import Any
 
 import torch
 
-from edr.data import read_video, synthetic_scene
-from edr.data.fingerprint import files_fingerprint
+from edr.data.synthetic import video_or_scene
 from edr.representations import FDR, Representation
 from edr.validate import PositiveFloat, PositiveInt
 
@@ -57,22 +56,10 @@ def event_camera(
 ) -> dict[str, Any]:
     """Run every representation on one clip; returns its data rates and sparsity."""
     # ---- the clip ----------------------------------------------------------------------------
-    if video:
-        clip = read_video(video, max_frames=frames, size=(width, height))  # (T, 3, H, W)
-        fingerprint = files_fingerprint([Path(video)], Path(video).parent)
-    else:
-        clip = synthetic_scene(frames, height, width, seed=seed)
-        fingerprint = "generated"
+    clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
 
     # ---- every representation ----------------------------------------------------------------
-    metrics: dict[str, Any] = {
-        "data/source": "real" if video else "generated",
-        "data/video": str(video) if video else "generated scene (the seed draws it)",
-        "data/fingerprint": fingerprint,
-        "data/frames": clip.shape[0],
-        "data/size": f"{width}x{height}",
-        "data/fps": fps,
-    }
+    metrics: dict[str, Any] = {**data, "data/size": f"{width}x{height}", "data/fps": fps}
     for name, rep in representations.items():
         with torch.no_grad():
             out = rep(clip.unsqueeze(0))[0]  # (T', C_out, H, W)

@@ -20,8 +20,7 @@ import torch
 from tqdm import tqdm
 
 from edr.atomic import atomic_path
-from edr.data import read_video, synthetic_scene
-from edr.data.fingerprint import files_fingerprint
+from edr.data.synthetic import video_or_scene
 from edr.representations import Representation
 from edr.validate import PositiveInt
 
@@ -42,12 +41,8 @@ def representation_demo(
 ) -> dict[str, Any]:
     """Run each representation on the clip and draw them; returns timings and figure paths."""
     # ---- the clip ----------------------------------------------------------------------------
-    if video:
-        clip = read_video(video, max_frames=frames, size=(width, height))
-        source, fingerprint = str(video), files_fingerprint([Path(video)], Path(video).parent)
-    else:
-        clip = synthetic_scene(frames, height, width, seed=seed)
-        source, fingerprint = f"generated scene (seed {seed})", "generated"
+    clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
+    source = data["data/video"] if video else f"the generated scene of seed {seed}"
     t_count = clip.shape[0]
     if t_count < 2:
         raise ValueError(f"the demo needs at least 2 frames, {source} gave {t_count}")
@@ -60,12 +55,7 @@ def representation_demo(
 
     # ---- every representation ----------------------------------------------------------------
     outputs: dict[str, torch.Tensor] = {}
-    metrics: dict[str, Any] = {
-        "data/source": "real" if video else "generated",
-        "data/video": source,
-        "data/fingerprint": fingerprint,
-        "data/frames": t_count,
-    }
+    metrics: dict[str, Any] = dict(data)
     for name, rep in (bar := tqdm(representations.items(), desc="representations", unit="rep")):
         bar.set_postfix_str(name)
         start = time.perf_counter()
