@@ -82,7 +82,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
         record["data"]["source"] == "emulator" and "pong.bin md5" in record["data"]["fingerprint"]
     )
     assert metrics["train/frames"] == 2000
-    for key in ("train/loss_objective", "train/loss_critic", "train/loss_entropy"):
+    for key in ("train/loss_actor", "train/loss_critic", "train/entropy"):
         assert np.isfinite(metrics[key])
     assert (
         metrics["eval/plays"] == 2 == len(json.loads((tmp_path / "eval_scores.json").read_text()))

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from edr.representations import EDR
-from edr.rl.envs import gym_atari, make_atari_env
+from edr.rl.envs import EnvPoolAtari, gym_atari, gym_image_env, make_atari_env
 from edr.rl.transform import EDRTransform, FrameStack
 
 
@@ -17,7 +19,9 @@ def _edr_transform(env) -> EDRTransform:
     return found
 
 
-@pytest.mark.parametrize(("mode", "num_envs"), [("single", 1), ("serial", 2), ("parallel", 2)])
+@pytest.mark.parametrize(
+    ("mode", "num_envs"), [("single", 1), ("serial", 2), ("parallel", 2), ("envpool", 2)]
+)
 def test_env_specs_hold_with_edr(mode: str, num_envs: int) -> None:
     env = make_atari_env("Pong", num_envs=num_envs, mode=mode, edr=EDR(color="gray"), frame_stack=2)
     try:
@@ -65,8 +69,9 @@ def test_transform_equals_edr_step_on_the_same_frames() -> None:
     assert got[1:].abs().sum() > 0  # Pong's ball and paddles move
 
 
-def test_partial_reset_restarts_only_that_env() -> None:
-    env = make_atari_env("Pong", num_envs=3, mode="serial", fdr="none", edr=EDR(color="gray"))
+@pytest.mark.parametrize("mode", ["serial", "envpool"])
+def test_partial_reset_restarts_only_that_env(mode: str) -> None:
+    env = make_atari_env("Pong", num_envs=3, mode=mode, fdr="none", edr=EDR(color="gray"))
     env.set_seed(1)
     rollout = env.rollout(6, break_when_any_done=False)
     transform = _edr_transform(env)
@@ -133,3 +138,36 @@ def test_transform_is_not_for_stored_data() -> None:
         EDRTransform()(
             TensorDict({"pixels": torch.zeros(2, 8, 8, 3, dtype=torch.uint8)}, batch_size=[2])
         )
+
+
+def test_envpool_resets_only_the_flagged_env_and_plays_the_paac_preset() -> None:
+    env = EnvPoolAtari("Pong", num_envs=2)
+    env.set_seed(3)
+    td = env.reset()
+    assert td["pixels"].shape == (2, 84, 84, 3) and td["pixels"].dtype == torch.uint8
+    action = torch.zeros(2, 6, dtype=torch.bool)
+    action[:, 0] = True
+    for _ in range(5):
+        out = env.step(td.set("action", action))["next"]
+    before = out["pixels"].clone()
+    reset = env.reset(out.clone().set("_reset", torch.tensor([[True], [False]])))
+    torch.testing.assert_close(reset["pixels"][1], before[1])  # env 1 untouched
+    assert not reset["done"].any()
+    env.close()
+
+
+def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(Path(__file__).parent))
+    env = make_atari_env(
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, mode="serial",
+        edr=EDR(color="gray"), frame_stack=2, keep_inputs=False,
+    )  # fmt: skip
+    rollout = env.rollout(12, break_when_any_done=False)
+    assert rollout["next", "observation"].shape == (2, 12, 2 * (3 + 2), 84, 84)
+    assert "pixels" not in rollout.keys() and "edr" not in rollout["next"].keys()
+    assert set(rollout["next", "reward"].unique().tolist()) <= {-1.0, 0.0, 1.0}
+    env.close()
+    with pytest.raises(ValueError, match="envpool plays ALE games only"):
+        make_atari_env("EdrCatch-v0", preset="none", module="catch_game", mode="envpool")
+    with pytest.raises(ValueError, match="RGB image observations"):
+        gym_image_env("CartPole-v1")

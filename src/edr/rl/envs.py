@@ -1,10 +1,17 @@
-"""Atari through gymnasium and ale-py (ROMs ship in the wheel), wrapped by torchrl.
+"""Atari for torchrl: ale-py (ROMs ship in the wheel) through gymnasium, or EnvPool.
 
-Presets:
+Backends: ``envpool`` (EnvPool's C++ thread pool steps every env; one process), ``parallel``
+(torchrl's ``ParallelEnv``: one process per env), ``serial`` (one process, one env after
+another) and ``single`` (one env, no batch dimension).
+
+Presets (the same on every backend):
 - ``paac`` (the paper's era): frame skip 4 with a max over the last two frames, no sticky
-  actions, up to 30 no-op starts, 84x84, end of life = end of episode in training, rewards
-  clipped to their sign.
+  actions, up to 30 no-op starts, 84x84, rewards clipped to their sign in training. A life
+  lost ends a training episode only with ``life_loss=True`` (PAAC's default did not).
 - ``v5``: ALE v5's own defaults (frame skip 4, sticky actions 0.25), frames resized to 84x84.
+- ``none``: a user's own gymnasium env with RGB image observations and discrete actions (its
+  id in place of the game, ``module`` the module that registers it): no ALE wrappers, frames
+  resized to 84x84 if they are not.
 
 Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3
 or gray 1 channel, /255) and/or EDR events computed on the fly (``EDRTransform``), stacked over
@@ -16,16 +23,22 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib
+import os
 import re
 from typing import Literal
 
 import ale_py
 import ale_py.roms
 import gymnasium as gym
+import numpy as np
 import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import (
     Compose,
     EnvBase,
+    ExcludeTransform,
     GrayScale,
     GymWrapper,
     ParallelEnv,
@@ -42,10 +55,14 @@ from edr.rl.transform import EDRTransform, FrameStack
 
 gym.register_envs(ale_py)
 
-Preset = Literal["paac", "v5"]
+Preset = Literal["paac", "v5", "none"]
+Backend = Literal["envpool", "parallel", "serial", "single"]
+SCREEN = 84  # observations are SCREEN x SCREEN
 
 
-def gym_atari(game: str, preset: Preset = "paac", train: bool = True) -> gym.Env:
+def gym_atari(
+    game: str, preset: Preset = "paac", train: bool = True, life_loss: bool = False
+) -> gym.Env:
     """One gymnasium ALE env with RGB 84x84 observations (H, W, 3) uint8."""
     name = f"ALE/{game}-v5"
     if preset == "paac":
@@ -54,12 +71,12 @@ def gym_atari(game: str, preset: Preset = "paac", train: bool = True) -> gym.Env
             env,
             noop_max=30,
             frame_skip=4,
-            screen_size=84,
-            terminal_on_life_loss=train,
+            screen_size=SCREEN,
+            terminal_on_life_loss=train and life_loss,
             grayscale_obs=False,
         )
     if preset == "v5":
-        return gym.wrappers.ResizeObservation(gym.make(name), (84, 84))
+        return gym.wrappers.ResizeObservation(gym.make(name), (SCREEN, SCREEN))
     raise ValueError(f"preset must be 'paac' or 'v5', got {preset!r}")
 
 
@@ -74,25 +91,166 @@ def rom_fingerprint(game: str) -> str:
     )
 
 
-def _torchrl_atari(game: str, preset: Preset, train: bool) -> GymWrapper:
-    return GymWrapper(gym_atari(game, preset, train))
+def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
+    """A user's gymnasium env (registered by importing ``module``) with 84x84 RGB frames."""
+    if module is not None:
+        importlib.import_module(module)
+    env = gym.make(env_id)
+    space = env.observation_space
+    if not (
+        isinstance(space, gym.spaces.Box)
+        and space.dtype == np.uint8
+        and len(space.shape) == 3
+        and space.shape[-1] == 3
+    ):
+        raise ValueError(
+            f"{env_id}: preset=none needs RGB image observations (H, W, 3) uint8, got {space}"
+        )
+    if not isinstance(env.action_space, gym.spaces.Discrete):
+        raise ValueError(f"{env_id}: PAAC needs discrete actions, got {env.action_space}")
+    if space.shape[:2] != (SCREEN, SCREEN):
+        env = gym.wrappers.ResizeObservation(env, (SCREEN, SCREEN))
+    return env
+
+
+def _torchrl_gym(
+    game: str, preset: Preset, train: bool, life_loss: bool, module: str | None
+) -> GymWrapper:
+    """Runs in the worker process of a ParallelEnv: the module registers the env there too."""
+    if preset == "none":
+        return GymWrapper(gym_image_env(game, module), from_pixels=False)
+    return GymWrapper(gym_atari(game, preset, train, life_loss))
+
+
+class EnvPoolAtari(EnvBase):
+    """``num_envs`` Atari games stepped by EnvPool's thread pool, as one batched torchrl env.
+
+    Observations ``pixels`` (N, 84, 84, 3) uint8, rewards raw: what the gymnasium backend
+    gives, so the same transforms follow. Envs reset only when torchrl asks (``_reset`` names
+    them); EnvPool's own auto-reset never fires, because an ended env is reset before it steps.
+    """
+
+    def __init__(
+        self,
+        game: str,
+        num_envs: int,
+        preset: Preset = "paac",
+        train: bool = True,
+        life_loss: bool = False,
+        threads: int | None = None,
+    ) -> None:
+        super().__init__(batch_size=torch.Size([num_envs]))
+        if preset not in ("paac", "v5"):
+            raise ValueError(f"preset must be 'paac' or 'v5', got {preset!r}")
+        import envpool  # imported here: only this backend needs it
+
+        task, num_threads = f"{game}-v5", threads or min(num_envs, os.cpu_count() or 1)
+        self._make = functools.partial(
+            envpool.make_gymnasium,
+            task,
+            num_envs=num_envs,
+            num_threads=num_threads,
+            img_height=SCREEN,
+            img_width=SCREEN,
+            gray_scale=False,
+            stack_num=1,
+            frame_skip=4,
+            noop_max=30 if preset == "paac" else 1,  # 1: no no-op starts
+            repeat_action_probability=0.0 if preset == "paac" else 0.25,
+            episodic_life=train and life_loss and preset == "paac",
+            reward_clip=False,  # SignTransform clips, after RewardSum has the raw score
+            use_fire_reset=False,
+        )
+        self._pool = None  # made by the first reset or set_seed (making it takes ~1 s)
+        self._seed = 0
+        actions = int(envpool.make_spec(task).action_space.n)
+        self._pixels = torch.zeros(num_envs, SCREEN, SCREEN, 3, dtype=torch.uint8)
+        n = (num_envs,)
+        self.observation_spec = Composite(
+            pixels=Bounded(0, 255, shape=(*n, SCREEN, SCREEN, 3), dtype=torch.uint8), shape=n
+        )
+        self.action_spec = OneHot(actions, shape=(*n, actions))
+        self.reward_spec = Unbounded(shape=(*n, 1))
+        flag = Categorical(2, shape=(*n, 1), dtype=torch.bool)
+        self.done_spec = Composite(
+            done=flag, terminated=flag.clone(), truncated=flag.clone(), shape=n
+        )
+
+    @staticmethod
+    def _frames(obs: np.ndarray) -> torch.Tensor:
+        """EnvPool's (N, 3, H, W) -> (N, H, W, 3), a copy."""
+        return torch.from_numpy(obs).permute(0, 2, 3, 1).contiguous()
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        mask = tensordict.get("_reset", None) if tensordict is not None else None
+        if self._pool is None:
+            self._pool, mask = self._make(seed=self._seed), None
+        if mask is None or mask.all():
+            obs, _ = self._pool.reset()
+            self._pixels = self._frames(obs)
+        else:
+            rows = mask.reshape(-1).nonzero().squeeze(1)
+            obs, _ = self._pool.reset(rows.numpy().astype(np.int32))
+            self._pixels = self._pixels.clone()  # earlier frames may live on in collected data
+            self._pixels[rows] = self._frames(obs)
+        out = TensorDict({"pixels": self._pixels}, batch_size=self.batch_size)
+        return out.update(self.full_done_spec.zero())
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action").long().argmax(-1).numpy()  # one-hot -> index
+        obs, reward, terminated, truncated, _ = self._pool.step(action)
+        self._pixels = self._frames(obs)
+        terminated = torch.from_numpy(terminated).reshape(-1, 1)
+        truncated = torch.from_numpy(truncated).reshape(-1, 1)
+        return TensorDict(
+            {
+                "pixels": self._pixels,
+                "reward": torch.from_numpy(reward).float().reshape(-1, 1),
+                "done": terminated | truncated,
+                "terminated": terminated,
+                "truncated": truncated,
+            },
+            batch_size=self.batch_size,
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        """The next reset makes the pool again, seeded: EnvPool takes its seed when made."""
+        self.close(raise_if_closed=False)
+        self._seed = 0 if seed is None else seed
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+        super().close(raise_if_closed=raise_if_closed)
 
 
 def make_atari_env(
     game: str = "Pong",
     preset: Preset = "paac",
     num_envs: int = 1,
-    mode: Literal["parallel", "serial", "single"] = "parallel",
+    mode: Backend = "parallel",
     train: bool = True,
+    life_loss: bool = False,
+    module: str | None = None,
     fdr: Literal["rgb", "gray", "none"] = "rgb",
     edr: EDR | None = None,
     frame_stack: int = 1,
     obs_dtype: Literal["float32", "float16"] = "float32",
+    keep_inputs: bool = True,
 ) -> TransformedEnv:
-    """A torchrl env of ``num_envs`` Atari games with the observation the config asks for."""
+    """A torchrl env of ``num_envs`` Atari games with the observation the config asks for.
+
+    With ``preset="none"``, ``game`` is a gymnasium id (and ``module`` the module to import).
+
+    ``keep_inputs=False`` drops the pixels and the unstacked FDR / EDR images once the
+    observation is stacked: a training rollout then stores the observation alone.
+    """
     if fdr == "none" and edr is None:
         raise ValueError("the observation needs FDR, EDR or both")
-    factory = functools.partial(_torchrl_atari, game, preset, train)
+    if preset == "none" and mode == "envpool":
+        raise ValueError("backend=envpool plays ALE games only; preset=none needs parallel or serial")
+    factory = functools.partial(_torchrl_gym, game, preset, train, life_loss, module)
     if mode == "single":
         if num_envs != 1:
             raise ValueError(f"mode=single runs one env, not {num_envs}")
@@ -101,8 +259,10 @@ def make_atari_env(
         base = SerialEnv(num_envs, factory)
     elif mode == "parallel":
         base = ParallelEnv(num_envs, factory, mp_start_method="spawn")
+    elif mode == "envpool":
+        base = EnvPoolAtari(game, num_envs, preset, train, life_loss)
     else:
-        raise ValueError(f"mode must be parallel, serial or single, got {mode!r}")
+        raise ValueError(f"backend must be envpool, parallel, serial or single, got {mode!r}")
     parts = ["fdr"] if fdr != "none" else []
     transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"]), StepCounter()]
     if preset == "paac" and train:
@@ -118,4 +278,6 @@ def make_atari_env(
         raise ValueError(f"obs_dtype must be float32 or float16, got {obs_dtype!r}")
     stack = FrameStack(frame_stack, parts, "observation", dtype=getattr(torch, obs_dtype))
     transforms.append(stack)
+    if not keep_inputs:
+        transforms.append(ExcludeTransform("pixels", *parts))
     return TransformedEnv(base, Compose(*transforms))

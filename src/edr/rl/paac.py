@@ -20,6 +20,7 @@ import math
 from typing import Literal
 
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import Unbounded
@@ -66,7 +67,7 @@ class PAACNetwork(nn.Module):
             nn.ReLU(),
             nn.Conv2d(16, 32, 4, stride=2),
             nn.ReLU(),
-        )
+        ).to(memory_format=torch.channels_last)  # ~3x faster convolutions on CPU
         with torch.no_grad():
             _, channels, h, w = self.trunk(torch.zeros(1, in_channels, 84, 84)).shape
         self.core_type, self.channels, self.locations = core, channels, h * w
@@ -86,7 +87,8 @@ class PAACNetwork(nn.Module):
     def _step(
         self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, ...]:
-        maps = self.trunk(obs.float())  # (B, 32, 9, 9); observations may come as float16
+        # (B, 32, 9, 9); observations may come as float16, and go channels-last as the trunk
+        maps = self.trunk(obs.to(torch.float32, memory_format=torch.channels_last))
         if self.core_type == "ftlstm":
             h, c = self.cell(maps.flatten(2), (h, c))
             features = h
@@ -129,3 +131,32 @@ def recurrent_primer(network: PAACNetwork) -> TensorDictPrimer:
     """Zero recurrent state in every reset, so the collector carries it from step to step."""
     spec = Unbounded(shape=(network.state_size,), dtype=torch.float32)
     return TensorDictPrimer(rs_h=spec, rs_c=spec.clone(), reset_key="_reset", expand_specs=True)
+
+
+def paac_loss(
+    network: PAACNetwork,
+    data: TensorDictBase,
+    entropy_coeff: float,
+    critic_coeff: float,
+    scale: float,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """PAAC's loss on a rollout (N, T) with ``advantage`` and ``value_target`` (N, T, 1):
+
+    ``scale * (mean(-(log pi(a) * A + entropy_coeff * H)) + critic_coeff * mean((R - V)^2))``
+    (Clemente et al.: scale 5, entropy 0.02, critic 0.25). The rollout is replayed from its first
+    recurrent state. Returns the loss and its parts (detached) for the logs.
+    """
+    network.sequence = True
+    try:
+        logits, values, _, _ = network(
+            data["observation"], data["rs_h"], data["rs_c"], data["is_init"]
+        )  # (N, T, A), (N, T, 1)
+    finally:
+        network.sequence = False
+    log_pi = logits.log_softmax(-1)
+    taken = (log_pi * data["action"].to(log_pi.dtype)).sum(-1)  # actions one-hot (N, T, A)
+    entropy = -(log_pi.exp() * log_pi).sum(-1)
+    actor = -(taken * data["advantage"].squeeze(-1) + entropy_coeff * entropy).mean()
+    critic = critic_coeff * (data["value_target"] - values).pow(2).mean()
+    parts = {"loss_actor": actor, "loss_critic": critic, "entropy": entropy.mean()}
+    return scale * (actor + critic), {k: v.detach() for k, v in parts.items()}

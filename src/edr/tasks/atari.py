@@ -2,8 +2,8 @@
 
 Top to bottom: envs and network; the loop (torchrl's collector gathers ``rollout_steps`` steps
 of every env; n-step returns bootstrapped from the value of the state after the rollout;
-torchrl's ``A2CLoss`` with entropy bonus; RMSprop with the gradient's L2 norm clipped and the
-learning rate decaying linearly to 0); checkpoints; then ``eval_plays`` full games scored
+PAAC's loss (:func:`edr.rl.paac.paac_loss`); Adam or PAAC's TensorFlow-style RMSprop with the
+gradient's L2 norm clipped and the learning rate decaying linearly to 0); checkpoints; then ``eval_plays`` full games scored
 (min / max / mean, Table 1's columns) and the training curve (score against env steps).
 
 Frames here count env steps — agent decisions, summed over envs; with the frame skip of 4
@@ -26,13 +26,13 @@ from torchrl.collectors import Collector
 from torchrl.envs import InitTracker, TransformedEnv
 from torchrl.envs.utils import step_mdp
 from torchrl.modules import ProbabilisticActor
-from torchrl.objectives import A2CLoss
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
 from edr.representations import EDR
-from edr.rl.envs import Preset, make_atari_env, rom_fingerprint
-from edr.rl.paac import Core, PAACNetwork, paac_module, recurrent_primer
+from edr.rl.envs import Backend, Preset, make_atari_env, rom_fingerprint
+from edr.rl.optim import OptimizerName, make_optimizer
+from edr.rl.paac import Core, PAACNetwork, paac_loss, paac_module, recurrent_primer
 from edr.tasks.checkpoints import (
     CHECKPOINT,
     load_checkpoint,
@@ -43,6 +43,7 @@ from edr.tasks.checkpoints import (
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import (
+    ConfigError,
     Fraction,
     LoggerName,
     NonNegativeFloat,
@@ -54,6 +55,7 @@ INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1 n
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # one row per update: env steps, losses, fps, mean training score
 SCORES = "eval_scores.json"  # the raw score of every evaluation game
+DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # lr=None: ours for Adam; PAAC's for RMSprop
 
 
 def _env(network: PAACNetwork, **kwargs: Any) -> TransformedEnv:
@@ -115,24 +117,30 @@ def train_paac(
     out_dir: Path,
     seed: int,
     game: str = "Pong",
+    env_id: str | None = None,
+    env_module: str | None = None,
     preset: Preset = "paac",
+    backend: Backend = "envpool",
+    life_loss: bool = False,
     num_envs: PositiveInt = 32,
-    env_mode: Literal["parallel", "serial", "single"] = "parallel",
     input: Literal["fdr", "fdr_edr", "edr"] = "fdr_edr",
     fdr: Literal["rgb", "gray"] = "rgb",
     edr: EDR | None = None,
     frame_stack: PositiveInt = 4,
     obs_dtype: Literal["float16", "float32"] = "float16",
-    core: Core = "lstm",
+    core: Core = "ftlstm",
     total_frames: PositiveInt = 80_000_000,
     lr_decay_frames: PositiveInt = 80_000_000,
     rollout_steps: PositiveInt = 5,
-    lr: PositiveFloat = 0.0224,
-    rmsprop_alpha: Fraction = 0.99,
+    optimizer: OptimizerName = "adam",
+    lr: PositiveFloat | None = None,
+    rmsprop_decay: Fraction = 0.99,
     rmsprop_eps: PositiveFloat = 0.1,
+    adam_eps: PositiveFloat = 1e-5,
     gamma: Fraction = 0.99,
+    loss_scale: PositiveFloat = 5.0,
     entropy_coeff: NonNegativeFloat = 0.02,
-    critic_coeff: NonNegativeFloat = 0.5,
+    critic_coeff: NonNegativeFloat = 0.25,
     max_grad_norm: PositiveFloat = 3.0,
     eval_plays: PositiveInt = 30,
     eval_max_steps: PositiveInt = 27_000,
@@ -140,17 +148,31 @@ def train_paac(
     resume: bool = False,
     logger: LoggerName = "csv",
 ) -> dict[str, Any]:
-    """Train PAAC on ``game``, then score ``eval_plays`` games; returns metrics.
+    """Train PAAC on ``game`` (or the gymnasium env ``env_id``), then score ``eval_plays`` games.
 
     ``input``: the frames (``fdr``, in the colour ``fdr`` names), the frames and the ``edr``
-    layer's events (``fdr_edr``), or the events alone (``edr``).
+    layer's events (``fdr_edr``), or the events alone (``edr``). ``lr=None``: the optimizer's
+    own default (:data:`DEFAULT_LR`). Returns the run's metrics.
     """
-    if input != "fdr" and edr is None:
-        raise ValueError(f"input={input!r} needs an EDR layer (task.edr), which is null")
-    # ---- envs, network, loss, optimizer ------------------------------------------------------
+    if input != "fdr" and not isinstance(edr, EDR):
+        raise ConfigError(
+            f"task.input={input} computes EDR events on the fly from the representation group, "
+            f"which holds {type(edr).__name__}: use representation=edr (representation.color=gray "
+            "for the paper's input), or task.input=fdr for frames alone"
+        )
+    if (env_id is None) != (preset != "none"):
+        raise ConfigError(
+            "a gymnasium env of your own takes task.env_id=<id> with task.preset=none "
+            f"(and task.env_module=<module that registers it>); got env_id={env_id!r}, "
+            f"preset={preset!r}"
+        )
+    name = env_id or game
+    # ---- envs, network, optimizer ------------------------------------------------------------
     env_kwargs = {
-        "game": game,
+        "game": name,
         "preset": preset,
+        "life_loss": life_loss,
+        "module": env_module,
         "fdr": fdr if input != "edr" else "none",
         "edr": edr if input != "fdr" else None,
         "frame_stack": frame_stack,
@@ -161,27 +183,24 @@ def train_paac(
     probe.close()
     arguments = {"in_channels": channels, "num_actions": actions, "core": core}
     network = PAACNetwork(**arguments)
-    env = _env(network, num_envs=num_envs, mode=env_mode, **env_kwargs)
+    env = _env(network, num_envs=num_envs, mode=backend, keep_inputs=False, **env_kwargs)
     env.set_seed(seed)
     actor = _actor(network, env)
-    loss_fn = A2CLoss(
-        actor_network=actor,
-        critic_network=paac_module(network),
-        entropy_coeff=entropy_coeff,
-        critic_coeff=critic_coeff,
-        loss_critic_type="l2",
-        functional=False,
-    )
-    optimizer = torch.optim.RMSprop(
-        network.parameters(), lr=lr, alpha=rmsprop_alpha, eps=rmsprop_eps
+    optim = make_optimizer(
+        optimizer,
+        network.parameters(),
+        lr=lr or DEFAULT_LR[optimizer],
+        rmsprop_decay=rmsprop_decay,
+        rmsprop_eps=rmsprop_eps,
+        adam_eps=adam_eps,
     )
     batch = num_envs * rollout_steps
     schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda update: max(0.0, 1.0 - update * batch / lr_decay_frames)
+        optim, lambda update: max(0.0, 1.0 - update * batch / lr_decay_frames)
     )
     frames_done, history = 0, []
     checkpoint = out_dir / CHECKPOINT
-    parts = {"network": network, "optimizer": optimizer, "schedule": schedule}
+    parts = {"network": network, "optimizer": optim, "schedule": schedule}
     if resume:
         state = load_checkpoint(checkpoint)
         restore(state, parts)  # episodes in progress restart
@@ -192,35 +211,34 @@ def train_paac(
         save_checkpoint(checkpoint, parts, frames=frames_done, history=history)
 
     # ---- training ----------------------------------------------------------------------------
-    collector = Collector(
-        env, actor, frames_per_batch=batch, total_frames=max(total_frames - frames_done, batch)
+    collector = Collector(  # the same tensordict each time: each rollout is used, then dropped
+        env,
+        actor,
+        frames_per_batch=batch,
+        total_frames=max(total_frames - frames_done, batch),
+        return_same_td=True,
     )
     recent: deque[float] = deque(maxlen=20)
     losses: dict[str, float] = {}
     start, frames_at_start = time.perf_counter(), frames_done
     bar = tqdm(
-        total=total_frames, initial=frames_done, desc=f"PAAC {game}", unit="frame", unit_scale=True
+        total=total_frames, initial=frames_done, desc=f"PAAC {name}", unit="frame", unit_scale=True
     )
     try:
         for update, data in enumerate(collector, start=1):
             if frames_done >= total_frames:
                 break
             data = n_step_targets(data, network, gamma)
-            network.sequence = True
-            try:
-                loss_td = loss_fn(data)
-            finally:
-                network.sequence = False
-            loss = loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]
-            optimizer.zero_grad(set_to_none=True)
+            loss, loss_parts = paac_loss(network, data, entropy_coeff, critic_coeff, loss_scale)
+            optim.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(network.parameters(), max_grad_norm)
-            optimizer.step()
+            optim.step()
             schedule.step()
             frames_done += data.numel()
             ended = data["next", "done"].squeeze(-1)
             recent.extend(data["next", "episode_reward"][ended].flatten().tolist())
-            losses = {k: float(v.detach()) for k, v in loss_td.items() if k.startswith("loss_")}
+            losses = {k: float(v) for k, v in loss_parts.items()}
             if not all(np.isfinite(v) for v in losses.values()):
                 raise FloatingPointError(f"non-finite loss at {frames_done} frames: {losses}")
             fps = (frames_done - frames_at_start) / (time.perf_counter() - start)
@@ -254,12 +272,12 @@ def train_paac(
     save_atomic({"state_dict": network.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     write_json_atomic(out_dir / HISTORY, history)
     write_json_atomic(out_dir / SCORES, scores)
-    save_score_curve(history, out_dir / "training_curve.png", title=f"{game}, {INPUT_NAMES[input]}")
+    save_score_curve(history, out_dir / "training_curve.png", title=f"{name}, {INPUT_NAMES[input]}")
     scored = [row for row in history if "train/score" in row]
     return {
-        "data/source": "emulator",
-        "data/game": game,
-        "data/fingerprint": rom_fingerprint(game),
+        "data/source": "emulator" if env_id is None else "gymnasium",
+        "data/game": name,
+        "data/fingerprint": rom_fingerprint(game) if env_id is None else f"{env_module}:{env_id}",
         "train/frames": frames_done,
         "train/fps": history[-1]["train/fps"] if history else float("nan"),
         "train/score_first": scored[0]["train/score"] if scored else None,

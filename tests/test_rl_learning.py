@@ -1,0 +1,106 @@
+"""PAAC learns: TensorFlow-style RMSprop steps as computed by hand, and every recurrent core beats
+random play on a small catching game (tests/catch_game.py) within a fixed budget of updates."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from edr.representations import EDR
+from edr.rl.optim import TFRMSprop, make_optimizer
+from edr.tasks.atari import train_paac
+from edr.validate import ConfigError
+
+
+def test_tf_rmsprop_step_equals_a_hand_computed_one() -> None:
+    p = torch.nn.Parameter(torch.tensor([1.0, -2.0]))
+    opt = TFRMSprop([p], lr=0.5, decay=0.9, eps=0.1)
+    ms = torch.ones(2)  # TensorFlow's mean-square slot starts at 1, not 0
+    for grad in ([0.2, -0.4], [1.0, 0.0]):
+        before, g = p.detach().clone(), torch.tensor(grad)
+        ms = 0.9 * ms + 0.1 * g * g
+        p.grad = g.clone()
+        opt.step()
+        torch.testing.assert_close(p.detach(), before - 0.5 * g / torch.sqrt(ms + 0.1))
+    # the first step in numbers: ms = 0.9 + 0.1 * 0.2^2 = 0.904; 1 - 0.5 * 0.2 / sqrt(1.004)
+    q = torch.nn.Parameter(torch.tensor([1.0]))
+    first = TFRMSprop([q], lr=0.5, decay=0.9, eps=0.1)
+    q.grad = torch.tensor([0.2])
+    first.step()
+    assert q.item() == pytest.approx(1 - 0.1 / 1.004**0.5)
+
+
+def test_torch_rmsprop_is_not_tf_rmsprop_at_paac_settings() -> None:
+    """Why the TF variant exists: torch's eps outside the root makes a small-gradient step SGD."""
+    grads = torch.full((3,), 1e-3)
+    steps = {}
+    for name, opt_cls in (("torch", torch.optim.RMSprop), ("tf", TFRMSprop)):
+        p = torch.nn.Parameter(torch.zeros(3))
+        kwargs = {"alpha": 0.99} if name == "torch" else {"decay": 0.99}
+        opt = opt_cls([p], lr=0.01, eps=0.1, **kwargs)
+        p.grad = grads.clone()
+        opt.step()
+        steps[name] = -p.detach()[0].item()
+    assert steps["torch"] == pytest.approx(0.01 * 1e-3 / (0.1 + 1e-4), rel=1e-3)  # ~ lr * g / eps
+    assert steps["tf"] == pytest.approx(0.01 * 1e-3 / (1.0 + 1e-8 + 0.1 - 0.01) ** 0.5, rel=1e-3)
+    with pytest.raises(ValueError, match="adam"):
+        make_optimizer("sgd", [p], lr=0.1)
+
+
+def _random_catch_score(episodes: int = 400) -> float:
+    import catch_game  # noqa: F401 - registers EdrCatch-v0
+
+    env, rng, scores = gym.make("EdrCatch-v0"), np.random.default_rng(0), []
+    for episode in range(episodes):
+        env.reset(seed=episode)
+        score, done = 0.0, False
+        while not done:
+            _, reward, done, _, _ = env.step(int(rng.integers(3)))
+            score += reward
+        scores.append(score)
+    return float(np.mean(scores))
+
+
+@pytest.fixture(scope="module")
+def random_score() -> float:
+    return _random_catch_score()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("core", ["none", "lstm", "ftlstm"])
+def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -> None:
+    """Defaults of task=atari (Adam, PAAC's loss, FDR+EDR), 500 updates of 8 envs x 5 steps."""
+    monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
+    torch.manual_seed(0)
+    metrics = train_paac(
+        out_dir=tmp_path,
+        seed=0,
+        env_id="EdrCatch-v0",
+        env_module="catch_game",
+        preset="none",
+        backend="serial",
+        num_envs=8,
+        core=core,
+        edr=EDR(color="gray"),
+        total_frames=20_000,
+        lr_decay_frames=10**9,
+        eval_plays=20,
+        eval_max_steps=100,
+        checkpoint_every=10**6,
+        logger=None,
+    )
+    assert metrics["data/source"] == "gymnasium" and metrics["data/game"] == "EdrCatch-v0"
+    # random play loses ~2.4 of 4 drops net; a policy that follows the ball wins all 4
+    assert random_score < -1.5
+    assert metrics["eval/mean"] > random_score + 2.0, (core, metrics["eval/mean"], random_score)
+
+
+def test_an_input_that_needs_edr_refuses_another_representation(tmp_path) -> None:
+    from edr.representations import FDR
+
+    with pytest.raises(ConfigError, match="representation=edr"):
+        train_paac(out_dir=tmp_path, seed=0, input="fdr_edr", edr=FDR(), backend="serial")
+    with pytest.raises(ConfigError, match="task.env_id"):
+        train_paac(out_dir=tmp_path, seed=0, env_id="EdrCatch-v0", edr=EDR(color="gray"))
