@@ -10,6 +10,8 @@ Importing this module registers it as ``EdrCatch-v0``.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import gymnasium as gym
 import numpy as np
 
@@ -17,7 +19,7 @@ CELL = 12  # pixels per grid cell
 
 
 class Catch(gym.Env):
-    metadata = {"render_modes": []}
+    metadata: ClassVar[dict] = {"render_modes": []}
 
     def __init__(self, size: int = 5, drops: int = 4) -> None:
         self.size, self.drops = size, drops

@@ -164,7 +164,7 @@ def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
     )  # fmt: skip
     rollout = env.rollout(12, break_when_any_done=False)
     assert rollout["next", "observation"].shape == (2, 12, 2 * (3 + 2), 84, 84)
-    assert "pixels" not in rollout.keys() and "edr" not in rollout["next"].keys()
+    assert "pixels" not in rollout and "edr" not in rollout["next"]
     assert set(rollout["next", "reward"].unique().tolist()) <= {-1.0, 0.0, 1.0}
     env.close()
     with pytest.raises(ValueError, match="envpool plays ALE games only"):

@@ -102,5 +102,5 @@ def test_an_input_that_needs_edr_refuses_another_representation(tmp_path) -> Non
 
     with pytest.raises(ConfigError, match="representation=edr"):
         train_paac(out_dir=tmp_path, seed=0, input="fdr_edr", edr=FDR(), backend="serial")
-    with pytest.raises(ConfigError, match="task.env_id"):
+    with pytest.raises(ConfigError, match=r"task\.env_id"):
         train_paac(out_dir=tmp_path, seed=0, env_id="EdrCatch-v0", edr=EDR(color="gray"))

@@ -249,7 +249,9 @@ def make_atari_env(
     if fdr == "none" and edr is None:
         raise ValueError("the observation needs FDR, EDR or both")
     if preset == "none" and mode == "envpool":
-        raise ValueError("backend=envpool plays ALE games only; preset=none needs parallel or serial")
+        raise ValueError(
+            "backend=envpool plays ALE games only; preset=none needs parallel or serial"
+        )
     factory = functools.partial(_torchrl_gym, game, preset, train, life_loss, module)
     if mode == "single":
         if num_envs != 1:

@@ -28,11 +28,13 @@ class TFRMSprop(torch.optim.Optimizer):
         eps: float = 0.1,
     ) -> None:
         if lr <= 0 or not 0 <= decay < 1 or eps <= 0:
-            raise ValueError(f"TFRMSprop needs lr > 0, 0 <= decay < 1, eps > 0; got {lr}, {decay}, {eps}")
+            raise ValueError(
+                f"TFRMSprop needs lr > 0, 0 <= decay < 1, eps > 0; got {lr}, {decay}, {eps}"
+            )
         super().__init__(params, {"lr": lr, "decay": decay, "eps": eps})
 
     @torch.no_grad()
-    def step(self, closure=None):  # noqa: ANN001, ANN201 - torch's signature
+    def step(self, closure=None):  # torch's signature
         loss = None if closure is None else closure()
         for group in self.param_groups:
             for p in group["params"]:
