@@ -65,10 +65,13 @@ def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
 def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
     bench.main(
         ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0", "--frame-stack", "2",
-         "--out-dir", str(tmp_path / "bench")]
+         "--train-frames", "40", "--out-dir", str(tmp_path / "bench")]
     )  # fmt: skip
-    (record_path,) = (tmp_path / "bench").glob("atari_*.json")
+    paths = {p.name.split("_")[1]: p for p in (tmp_path / "bench").glob("atari_*.json")}
+    assert set(paths) == {"envpool", "parallel"}  # both backends, one run
+    record_path = paths["envpool"]
     record = json.loads(record_path.read_text())
+    assert record["backend"] == "envpool" and record["train_fps"] > 0
     assert [row["name"] for row in record["rows"]] == [
         "Pong: FDR RGB, 2 frames, float16",
         "Pong: FDR RGB + EDR gray, 2 frames, float16",
@@ -79,6 +82,7 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     assert "EDR costs" in capsys.readouterr().out
     assert not (tmp_path / "paper").exists()  # edr-bench writes records only
     tables.main(["--runs", str(tmp_path), "--out", str(tmp_path / "paper")])
-    row = (tmp_path / "paper" / "atari_edr_cost.md").read_text().splitlines()[-1]
-    assert row.startswith("| Pong | 2 | 2 | float16 |") and f"{record['cost']:.1f} %" in row
-    assert record_path.name in row
+    text = (tmp_path / "paper" / "atari_edr_cost.md").read_text()
+    (row,) = [line for line in text.splitlines() if record_path.name in line]
+    assert row.startswith("| Pong | envpool | 2 | 2 | float16 |")
+    assert f"{record['cost']:.1f} %" in row and f"{record['train_fps']:,.0f} over 40" in row

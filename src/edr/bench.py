@@ -18,6 +18,7 @@ import io
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
@@ -197,9 +198,27 @@ class AtariThroughput:
         return statistics.median(self.costs)
 
 
+BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl ParallelEnv",
+                 "serial": "torchrl SerialEnv"}  # fmt: skip
+
+
+def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> float:
+    """Env steps/s of ``task=atari``'s training loop (FDR RGB + EDR gray, its defaults otherwise)
+    over ``frames`` env steps, from the first rollout on, as its progress bar shows them."""
+    from edr.tasks.atari import train_paac
+
+    with tempfile.TemporaryDirectory() as out_dir:
+        metrics = train_paac(
+            out_dir=Path(out_dir), seed=0, game=game, backend=backend, num_envs=num_envs,
+            edr=EDR(color="gray"), total_frames=frames, eval_plays=1, eval_max_steps=1,
+            checkpoint_every=10**9, logger=None,
+        )  # fmt: skip
+    return float(metrics["train/fps"])
+
+
 def atari_throughput(
     game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int,
-    obs_dtype: str = "float16",
+    obs_dtype: str = "float16", backend: str = "parallel",
 ) -> AtariThroughput:  # fmt: skip
     """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
 
@@ -213,7 +232,12 @@ def atari_throughput(
     configs = {"FDR RGB": None, "FDR RGB + EDR gray": EDR(color="gray")}
     envs = [
         make_atari_env(
-            game, num_envs=num_envs, edr=edr, frame_stack=frame_stack, obs_dtype=obs_dtype
+            game,
+            num_envs=num_envs,
+            mode=backend,
+            edr=edr,
+            frame_stack=frame_stack,
+            obs_dtype=obs_dtype,
         )
         for edr in configs.values()
     ]
@@ -242,7 +266,7 @@ def atari_throughput(
     finally:
         for env in envs:
             env.close()
-    implementation = f"torchrl ParallelEnv, {num_envs} envs, paac preset"
+    implementation = f"{BACKEND_NAMES[backend]}, {num_envs} envs, paac preset"
     frames = steps * num_envs
     rows = [
         Row(f"{game}: {name}, {frame_stack} frames, {obs_dtype}", implementation, frames, "84x84",
@@ -274,6 +298,14 @@ def main(argv: list[str] | None = None) -> None:
     )  # fmt: skip
     parser.add_argument("--game", default="Pong", help="the Atari game for --atari")
     parser.add_argument(
+        "--backends", default="envpool,parallel",
+        help="the env backends --atari compares, in one run (comma-separated)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--train-frames", type=int, default=32_000,
+        help="env steps of task=atari's training loop timed per backend (--atari; 0: skip)",
+    )  # fmt: skip
+    parser.add_argument(
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"
     )
     parser.add_argument(
@@ -300,34 +332,39 @@ def main(argv: list[str] | None = None) -> None:
         torch.set_num_threads(args.threads)
 
     if args.atari:
-        result = atari_throughput(
-            args.game,
-            args.atari,
-            args.steps,
-            repeats,
-            args.warmup,
-            args.frame_stack,
-            args.obs_dtype,
-        )
-        stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
-        machine = machine_info()
-        record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
-                  "game": args.game, "num_envs": args.atari, "frame_stack": args.frame_stack,
-                  "obs_dtype": args.obs_dtype,
-                  "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
-                  "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
-        path = write_json_atomic(args.out_dir / f"atari_{machine['hostname']}_{stamp}.json", record)
-        print(atari_cost_table([(path, record)]))
-        for r, cpu in zip(result.rows, result.main_cpu_ms, strict=True):
-            print(
-                f"{r.name:40s} {r.fps:8.1f} env steps/s ({4 * r.fps:.0f} emulator frames/s), "
-                f"main process {cpu:.2f} CPU ms per agent step"
+        stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
+        records = []
+        for backend in args.backends.split(","):
+            result = atari_throughput(
+                args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack,
+                args.obs_dtype, backend,
+            )  # fmt: skip
+            train_fps = (
+                training_throughput(args.game, args.atari, backend, args.train_frames)
+                if args.train_frames
+                else None
             )
-        print(
-            f"EDR costs {result.cost:.1f} % of throughput (median of {repeats} paired rollouts; "
-            f"pairs from {min(result.costs):.1f} to {max(result.costs):.1f} %)\n"
-            f"record: {path} (edr-tables renders paper/atari_edr_cost.md from the records)"
-        )
+            record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
+                      "game": args.game, "num_envs": args.atari, "backend": backend,
+                      "frame_stack": args.frame_stack, "obs_dtype": args.obs_dtype,
+                      "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
+                      "train_frames": args.train_frames, "train_fps": train_fps,
+                      "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
+            name = f"atari_{backend}_{machine['hostname']}_{stamp}.json"
+            records.append((write_json_atomic(args.out_dir / name, record), record))
+            for r, cpu in zip(result.rows, result.main_cpu_ms, strict=True):
+                print(
+                    f"{backend:9s} {r.name:40s} {r.fps:8.1f} env steps/s "
+                    f"({4 * r.fps:.0f} emulator frames/s), main process {cpu:.2f} CPU ms/step"
+                )
+            print(
+                f"{backend:9s} EDR costs {result.cost:.1f} % of throughput (median of {repeats} "
+                f"paired rollouts; {min(result.costs):.1f} to {max(result.costs):.1f} %)"
+                + (f"; training loop {train_fps:.0f} env steps/s" if train_fps else "")
+            )
+        print(atari_cost_table(records))
+        print(f"records: {', '.join(str(p) for p, _ in records)} (edr-tables renders "
+              "paper/atari_edr_cost.md from them)")  # fmt: skip
         return
 
     # ---- the clip ----------------------------------------------------------------------------

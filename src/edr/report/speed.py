@@ -113,25 +113,29 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
     lines = [
         "# What EDR costs in the Atari loop: env steps per second with and without it",
         "",
-        "`edr-bench --atari ENVS`: a torchrl ParallelEnv of ENVS games, paac preset, random",
-        "actions, played as a collector plays them; FDR RGB vs FDR RGB + EDR on gray (Appendix C's",
-        "5 channels per frame), both stacked over the frames given, in the observation dtype given.",
+        "`edr-bench --atari ENVS`: ENVS games on each backend (EnvPool's C++ threads in one",
+        "process, or torchrl's ParallelEnv, a process per env), paac preset, random actions, played",
+        "as a collector plays them; FDR RGB vs FDR RGB + EDR on gray (Appendix C's 5 channels per",
+        "frame), both stacked over the frames given, in the observation dtype given.",
         "The two envs take turns; the cost is the median over pairs of rollouts of",
         "1 - (FDR+EDR steps/s) / (FDR steps/s), with the pairs' range. The goal is at most 5 %.",
         "Main CPU: CPU milliseconds the main process",
         "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run).",
+        "Training: env steps/s of `task=atari`'s whole loop (FDR+EDR, ftlstm core, its defaults)",
+        "on that backend, over the env steps given, as its progress bar reports them.",
         "",
-        "| Game | Envs | Frames stacked | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Machine | Measured, git | Record |",
-        "|---|---:|---:|---|---:|---:|---:|---|---|---|---|---|",
+        "| Game | Backend | Envs | Frames stacked | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Training (steps/s) | Machine | Measured, git | Record |",
+        "|---|---|---:|---:|---|---:|---:|---:|---|---|---:|---|---|---|",
     ]
     for path, r in paired:
         fdr, edr = r["rows"]
         costs, m = r["costs"], r["machine"]
+        train = f"{r['train_fps']:,.0f} over {r['train_frames']:,}" if r.get("train_fps") else "—"
         lines.append(
-            f"| {r['game']} | {r['num_envs']} | {r['frame_stack']} | "
+            f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r['frame_stack']} | "
             f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "
             f"{edr['fps']:,.1f} | {r['cost']:.1f} % | {len(costs)}: {min(costs):.1f} to "
-            f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | "
+            f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | {train} | "
             f"{m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'} | "
             f"{r['measured_at']}, `{r['git']}` | `{path.name}` |"
         )
