@@ -23,7 +23,7 @@ def paper(tmp_path_factory) -> Path:
     (root / "bench").mkdir()
     bench.main(
         ["--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
-         "--width", "48", "--atari-batch", "2", "--out-dir", str(root / "bench")]
+         "--width", "48", "--atari-batch", "2", "--long-frames", "9", "--out-dir", str(root / "bench")]
     )  # fmt: skip
     tables.main(["--runs", str(root / "sweeps"), "--bench", str(root / "bench"),
                  "--out", str(root / "paper")])  # fmt: skip

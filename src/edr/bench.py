@@ -122,6 +122,24 @@ def on_one_thread(call: Callable[[], Any]) -> Callable[[], Any]:
     return run
 
 
+def long_clip_jobs(long: torch.Tensor, label: str) -> list[Job]:
+    """EDR K=1 and GrayDiff on a long clip (1, T, 3, H, W): the plain call and into ``out=``."""
+    t, h, w = long.shape[1], long.shape[3], long.shape[4]
+    out: list[Job] = []
+    for name, rep, channels, frames in (
+        ("EDR K=1 soft gray", EDR(color="gray"), 2, t),
+        ("GrayDiff", GrayDiff(), 1, t - 1),
+    ):
+        buffer = torch.empty((1, frames, channels, h, w))
+        out += [
+            Job(f"{name}, {t}-frame clip", f"fused kernel, plain call{label}",
+                lambda rep=rep: rep(long), t, f"{w}x{h}"),
+            Job(f"{name}, {t}-frame clip", "fused kernel, into out=",
+                lambda rep=rep, b=buffer: rep(long, out=b), t, f"{w}x{h}"),
+        ]  # fmt: skip
+    return out
+
+
 def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]:
     """Every row: clip (1, T, 3, H, W) uint8 video, atari (N, T, 1, 84, 84) uint8 frames."""
     t, h, w = clip.shape[1], clip.shape[3], clip.shape[4]
@@ -285,6 +303,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--video", type=Path, help="a real video to time on (default: generated)")
     parser.add_argument("--frames", type=int, default=32, help="frames per call (clip length)")
     parser.add_argument("--flow-frames", type=int, default=6, help="frames per call for slow flows")
+    parser.add_argument(
+        "--long-frames", type=int, default=250, help="frames of the long clip (plain call, out=)"
+    )
     parser.add_argument("--height", type=int, default=240)
     parser.add_argument("--width", type=int, default=320)
     parser.add_argument("--atari-batch", type=int, default=32, help="envs in the Atari-like batch")
@@ -309,11 +330,6 @@ def main(argv: list[str] | None = None) -> None:
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"
     )
     parser.add_argument(
-        "--system-malloc",
-        action="store_true",
-        help="leave glibc's allocator as it is (default: keep freed memory, see edr.allocator)",
-    )
-    parser.add_argument(
         "--frame-stack", type=int, default=4, help="agent steps per observation (--atari)"
     )
     parser.add_argument(
@@ -325,9 +341,6 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
     args = parser.parse_args(argv)
     repeats = 2 if args.quick else args.repeats
-    allocator = "glibc default" if args.system_malloc else "glibc, freed memory kept"
-    if not args.system_malloc and not keep_freed_memory():
-        allocator = "system default (mallopt unavailable)"
     if args.threads:
         torch.set_num_threads(args.threads)
 
@@ -376,32 +389,34 @@ def main(argv: list[str] | None = None) -> None:
         clip = synthetic_scene(args.frames, args.height, args.width)
         source = f"generated scene, {args.width}x{args.height}"
     clip = clip.unsqueeze(0).contiguous()  # (1, T, 3, H, W) uint8
+    repeat = -(-args.long_frames // clip.shape[1])  # the clip played again until long enough
+    long = clip.repeat(1, repeat, 1, 1, 1)[:, : args.long_frames].contiguous()
     atari = torch.randint(0, 256, (args.atari_batch, args.frames, 1, 84, 84), dtype=torch.uint8)
 
     # ---- every row ---------------------------------------------------------------------------
+    # The process's allocator as users have it; the last rows again with glibc keeping freed
+    # memory (edr.allocator.keep_freed_memory, process-wide, so only after everything else).
     rows: list[Row] = []
+    todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari) + long_clip_jobs(long, "")
+    kept = long_clip_jobs(long, ", glibc keeping freed memory")[::2]
     with torch.no_grad():
-        todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari)
-        for job in (bar := tqdm(todo, desc="edr-bench", unit="row")):
+        for job in (bar := tqdm([*todo, *kept], desc="edr-bench", unit="row")):
             bar.set_postfix_str(job.name)
+            if job is kept[0] and not keep_freed_memory():
+                break  # not glibc: nothing to compare with
             with busy_neighbour() if job.busy_neighbour else nullcontext():
                 seconds = time_call(job.call, repeats, warmup=args.warmup)
             rows.append(
-                Row(
-                    job.name,
-                    job.implementation,
-                    job.frames,
-                    job.frame_size,
-                    seconds,
-                    job.frames / seconds,
-                )
-            )
+                Row(job.name, job.implementation, job.frames, job.frame_size, seconds,
+                    job.frames / seconds)
+            )  # fmt: skip
 
     # ---- record and table --------------------------------------------------------------------
     stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
     machine = machine_info()
     machine["numba_threads"] = numba.get_num_threads()
-    machine["allocator"] = allocator
+    machine["numba_threading_layer"] = numba.threading_layer()
+    machine["allocator"] = "process default (glibc: freed memory kept only in the last rows)"
     record = {
         "kind": "speed",
         "clip": source,

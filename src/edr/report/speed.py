@@ -51,6 +51,20 @@ def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
     busy = "EDR K=1 soft gray, busy neighbour"
     busy_all = bench_fps(rows, busy, "fused numba kernel, all threads")
     busy_one = bench_fps(rows, busy, "fused numba kernel, 1 thread")
+    long_edr = next(
+        (
+            r["name"]
+            for r in rows
+            if r["name"].startswith("EDR K=1 soft gray, ") and r["name"].endswith("-frame clip")
+        ),
+        "",
+    )
+    long_gray = long_edr.replace("EDR K=1 soft gray", "GrayDiff")
+    plain = bench_fps(rows, long_edr, "fused kernel, plain call")
+    kept = bench_fps(rows, long_edr, "fused kernel, plain call, glibc keeping freed memory")
+    edr_out, gray_out = (
+        bench_fps(rows, n, "fused kernel, into out=") for n in (long_edr, long_gray)
+    )
     return [
         "| Ratio | Ours | Paper |",
         "|---|---:|---:|",
@@ -60,6 +74,8 @@ def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
         f"| EDR K=1 / TV-L1 | {_ratio(edr, tvl1, ',.0f')}x | {cite(PUBLISHED_SPEED.get('edr_over_optical_flow'))} |",
         f"| EDR K=1 / Farneback | {_ratio(edr, farneback, ',.0f')}x | — |",
         f"| EDR K=1, busy neighbour: all threads / 1 thread | {_ratio(busy_all, busy_one, '.2f')} | — |",
+        f"| EDR K=1, long clip: plain call / glibc keeping freed memory | {_ratio(plain, kept, '.2f')} | — |",
+        f"| EDR K=1 / GrayDiff, long clip, both into out= | {_ratio(edr_out, gray_out, '.2f')} | — |",
     ]
 
 
@@ -71,7 +87,8 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
         "# Table 2, speed: representations per second, ours beside the paper's",
         "",
         f"- **Ours**: `edr-bench` on {m['cpu']} ({m['cpu_count']} cores), "
-        f"{m['torch_threads']} torch / {m.get('numba_threads', '?')} numba threads, "
+        f"{m['torch_threads']} torch / {m.get('numba_threads', '?')} numba threads "
+        f"({m.get('numba_threading_layer', 'omp')}), "
         f"allocator: {m.get('allocator', '?')}, GPU: {m.get('gpu') or 'none'}; {record['measured_at']}, git `{record['git']}`"
         + (f", record `{source}`" if source else "")
         + ".",

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from edr.representations import kernels
+from edr.representations import buffers, kernels
 from edr.representations.base import (
     Features,
     Representation,
@@ -155,18 +155,28 @@ class EDR(Representation):
         return on, off
 
     # ---- public API --------------------------------------------------------------------------
-    def forward(self, frames: torch.Tensor) -> torch.Tensor:
-        """(B, T, C, H, W) uint8 or float -> (B, T, C' * 2 * K', H, W) float."""
+    def forward(self, frames: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, T, C, H, W) uint8 or float -> (B, T, C' * 2 * K', H, W) in ``out_dtype``.
+
+        ``out``: a tensor of that shape and dtype to write the events into (and return), so
+        that repeated calls reuse one buffer; without it, big outputs come from recycled memory
+        (:mod:`edr.representations.buffers`).
+        """
         check_clip(frames, name="frames")
+        b, t, c, h, w = frames.shape
+        shape = (b, t, self.out_channels(c), h, w)
         if self._can_fuse(frames):
-            b, t, _, h, w = frames.shape
-            ema = torch.empty((b, self._channels(frames.shape[2]), self.k, h, w))
-            return self._fused(frames, ema, np.ones(b, np.bool_))
+            ema = torch.empty((b, self._channels(c), self.k, h, w))
+            return self._fused(frames, ema, np.ones(b, np.bool_), out)
         state, outs = None, []
-        for t in range(frames.shape[1]):
-            out_t, state = self.step(frames[:, t], state)
+        for i in range(t):
+            out_t, state = self.step(frames[:, i], state)
             outs.append(out_t)
-        return torch.stack(outs, dim=1)  # (B, T, C'*2*K', H, W)
+        if out is None:
+            return torch.stack(outs, dim=1)  # (B, T, C'*2*K', H, W)
+        return torch.stack(
+            outs, dim=1, out=buffers.output(out, shape, self.out_dtype, frames.device)
+        )
 
     def step(
         self,
@@ -174,6 +184,7 @@ class EDR(Representation):
         state: EDRState | None = None,
         reset: torch.Tensor | None = None,
         inplace: bool = False,
+        out: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, EDRState]:
         """One frame (B, C, H, W) -> (events (B, C'*2*K', H, W), new state).
 
@@ -181,6 +192,8 @@ class EDR(Representation):
         where it is set. The state passed in is left as it was (keep it to branch or replay),
         unless ``inplace=True``: then the fused path writes the new EMA into its tensor and
         returns it, saving a copy of the state per step (for callers that own their buffers).
+        ``out``: a (B, C'*2*K', H, W) tensor in ``out_dtype`` that receives the events (a
+        streaming loop's one output buffer).
         """
         check_frame(frame)
         b, c, h, w = frame.shape
@@ -202,9 +215,16 @@ class EDR(Representation):
                 if not inplace and ema.data_ptr() == state.ema.data_ptr():
                     ema = ema.clone()  # the caller's state stays as it was
                 restart = reset.cpu().numpy() if reset is not None else np.zeros(b, np.bool_)
-            out = self._fused(frame.unsqueeze(1), ema, restart)
-            return out[:, 0], EDRState(ema)
-        return self._step_torch(frame, state, reset)
+            events = self._fused(
+                frame.unsqueeze(1), ema, restart, None if out is None else out.unsqueeze(1)
+            )
+            return events[:, 0], EDRState(ema)
+        events, state = self._step_torch(frame, state, reset)
+        if out is None:
+            return events, state
+        return buffers.output(out, tuple(events.shape), events.dtype, events.device).copy_(
+            events
+        ), state
 
     # ---- the two paths -----------------------------------------------------------------------
     def _channels(self, in_channels: int) -> int:
@@ -266,13 +286,21 @@ class EDR(Representation):
             self._param_cache = (key, arrays)
         return self._param_cache[1]
 
-    def _fused(self, frames: torch.Tensor, ema: torch.Tensor, restart: np.ndarray) -> torch.Tensor:
-        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) through ``kernels.edr_kernel``,
-        carrying the EMA in ``ema`` (updated in place)."""
+    def _fused(
+        self,
+        frames: torch.Tensor,
+        ema: torch.Tensor,
+        restart: np.ndarray,
+        out: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) in ``out_dtype`` (into ``out`` when
+        given) through ``kernels.edr_kernel``, carrying the EMA in ``ema`` (updated in place)."""
         b, t, c_in, h, w = frames.shape
         c, k = ema.shape[1], ema.shape[2]
         k_out = 1 if self.combine == "sum" else k
-        out = torch.empty((b, t, c * k_out * 2, h, w), dtype=torch.float32)
+        shape = (b, t, c * k_out * 2, h, w)
+        target = buffers.output(out, shape, self.out_dtype, frames.device)
+        events = target if buffers.writable(target) else buffers.RECYCLED.empty(shape)
         alpha, beta, on_th, off_th = self._kernel_params()
         pixels_last = frames.permute(0, 1, 3, 4, 2)  # (B, T, H, W, C), a view
         interleaved = c_in > 1 and pixels_last.is_contiguous()  # as env pixels (H, W, C) come
@@ -295,9 +323,9 @@ class EDR(Representation):
             self.combine == "sum",
             ema.view(b, c, k, h * w).numpy(),
             restart,
-            out.view(b, t, c, k_out, 2, h * w).numpy(),
+            events.view(b, t, c, k_out, 2, h * w).numpy(),
         )
-        return out if self.out_dtype == torch.float32 else out.to(self.out_dtype)
+        return target if events is target else target.copy_(events)
 
     def extra_repr(self) -> str:
         taus = [round(v, 3) for v in self.half_lives.tolist()]

@@ -7,7 +7,7 @@ from typing import Literal
 import numpy as np
 import torch
 
-from edr.representations import kernels
+from edr.representations import buffers, kernels
 from edr.representations.base import Features, Representation, check_clip, to_float, to_gray
 from edr.validate import PositiveFloat, check_arguments
 
@@ -61,21 +61,24 @@ class GrayDiff(Representation):
     def out_frames(self, frames: int) -> int:
         return frames - 1
 
-    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+    def forward(self, frames: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, T, C, H, W) -> (B, T-1, 1, H, W) float32, into ``out`` when given."""
         check_clip(frames, min_frames=2, name="frames")
+        b, t, c, h, w = frames.shape
+        target = buffers.output(out, (b, t - 1, 1, h, w), torch.float32, frames.device)
         fusable = frames.device.type == "cpu" and frames.dtype in (torch.uint8, torch.float32)
-        if self.fast and fusable and not (torch.is_grad_enabled() and frames.requires_grad):
-            b, t, c, h, w = frames.shape
-            out = torch.empty((b, t - 1, 1, h, w))
+        fused = self.fast and fusable and not (torch.is_grad_enabled() and frames.requires_grad)
+        if fused and buffers.writable(target):
             kernels.launch(
                 kernels.gray_diff_kernel,
                 frames.contiguous().view(b, t, c, h * w).numpy(),
                 np.float32(self.scale),
-                out.view(b, t - 1, 1, h * w).numpy(),
+                target.view(b, t - 1, 1, h * w).numpy(),
             )
-            return out
+            return target
         gray = to_gray(frames, channel_dim=2)  # (B, T, 1, H, W)
-        return (self.scale * (gray[:, 1:] - gray[:, :-1])).float()
+        diff = (self.scale * (gray[:, 1:] - gray[:, :-1])).float()
+        return diff if out is None else target.copy_(diff)
 
 
 class RGBDiff(Representation):

@@ -6,11 +6,22 @@ chunk stays in cache for the whole clip. They compute the same float32 expressio
 order, as the torch code in ``edr.py`` and ``frames.py``, so the two paths agree to rounding.
 Compiled code is cached on disk (``cache=True``): only the first call on a machine compiles.
 Call them through ``launch``, which runs them on as many threads as torch uses.
+
+Threads: numba runs them on Intel TBB where the ``tbb`` wheel is installed (a dependency; loaded
+here, as numba looks for it only on the library path). TBB's threads take work from a shared
+pool and the launching thread does what no other thread has taken, so a thread the OS preempts
+for a busy neighbour delays nothing it has not started. Under OpenMP every launch ends at a
+barrier that waits for the preempted thread: with one busy process beside it on 2 cores the
+2-thread kernel ran ~5-70x slower than on 1 thread. ``edr-bench`` reports the layer it ran on.
 """
 
 from __future__ import annotations
 
+import ctypes
+import site
+import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numba
@@ -21,6 +32,23 @@ from numba import njit, prange
 from edr.representations.base import GRAY_WEIGHTS
 
 CHUNK = 4096  # pixels per work item: 16 KiB of float32 state per timescale
+
+
+def _load_tbb() -> str | None:
+    """Load the ``tbb`` wheel's ``libtbb.so.12`` (it lives in ``<prefix>/lib``, which is not on the
+    loader's path), so that numba's default layer order picks TBB; the path, or None."""
+    for prefix in (sys.prefix, site.getuserbase()):
+        path = Path(prefix) / "lib" / "libtbb.so.12"
+        if path.is_file():
+            try:
+                ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+            except OSError:
+                continue
+            return str(path)
+    return None
+
+
+TBB_LIBRARY = _load_tbb()
 
 W_R, W_G, W_B = (np.float32(w) for w in GRAY_WEIGHTS)
 ZERO = np.float32(0.0)
