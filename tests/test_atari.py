@@ -11,7 +11,7 @@ import torch
 import edr.tasks.atari as atari
 from edr.rl.paac import PAACNetwork
 from edr.run import run
-from edr.tasks.atari import load_network
+from edr.tasks.atari import evaluate_checkpoint, load_network
 
 
 @pytest.mark.parametrize("core", ["lstm", "ftlstm", "none"])
@@ -73,6 +73,9 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
     assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1000
+    evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
+    assert evaluated["train/frames"] == 1000 and evaluated["eval/plays"] == 1
+    assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
     monkeypatch.setattr(atari, "n_step_targets", real_targets)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
 

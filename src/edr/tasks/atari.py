@@ -12,6 +12,7 @@ each is 4 emulator frames.
 
 from __future__ import annotations
 
+import json
 import time
 from collections import deque
 from pathlib import Path
@@ -19,6 +20,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
+from hydra.utils import instantiate
 from tensordict import TensorDictBase
 from tensordict.nn import InteractionType, set_interaction_type
 from torch.distributions import OneHotCategorical
@@ -29,6 +31,7 @@ from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
+from edr.records import read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, Preset, make_atari_env, rom_fingerprint
 from edr.rl.optim import OptimizerName, make_optimizer
@@ -168,21 +171,10 @@ def train_paac(
         )
     name = env_id or game
     # ---- envs, network, optimizer ------------------------------------------------------------
-    env_kwargs = {
-        "game": name,
-        "preset": preset,
-        "life_loss": life_loss,
-        "module": env_module,
-        "fdr": fdr if input != "edr" else "none",
-        "edr": edr if input != "fdr" else None,
-        "frame_stack": frame_stack,
-        "obs_dtype": obs_dtype,
-    }
-    probe = make_atari_env(mode="single", **env_kwargs)
-    channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
-    probe.close()
-    arguments = {"in_channels": channels, "num_actions": actions, "core": core}
-    network = PAACNetwork(**arguments)
+    env_kwargs = _env_kwargs(
+        name, preset, life_loss, env_module, input, fdr, edr, frame_stack, obs_dtype
+    )
+    network, arguments = _network(env_kwargs, core)
     env = _env(network, num_envs=num_envs, mode=backend, keep_inputs=False, **env_kwargs)
     env.set_seed(seed)
     actor = _actor(network, env)
@@ -265,14 +257,9 @@ def train_paac(
     save()
 
     # ---- evaluation --------------------------------------------------------------------------
-    eval_env = _env(network, num_envs=1, mode="single", train=False, **env_kwargs)
-    eval_env.set_seed(seed + 1)
-    scores = play(network, eval_env, eval_plays, eval_max_steps)
-    eval_env.close()
+    scores = _evaluate(network, env_kwargs, seed, eval_plays, eval_max_steps)
     save_atomic({"state_dict": network.state_dict(), "arguments": arguments}, out_dir / NETWORK)
-    write_json_atomic(out_dir / HISTORY, history)
-    write_json_atomic(out_dir / SCORES, scores)
-    save_score_curve(history, out_dir / "training_curve.png", title=f"{name}, {INPUT_NAMES[input]}")
+    _write_results(out_dir, history, scores, f"{name}, {INPUT_NAMES[input]}")
     scored = [row for row in history if "train/score" in row]
     return {
         "data/source": "emulator" if env_id is None else "gymnasium",
@@ -283,11 +270,101 @@ def train_paac(
         "train/score_first": scored[0]["train/score"] if scored else None,
         "train/score_last": scored[-1]["train/score"] if scored else None,
         **{f"train/{k}": v for k, v in losses.items()},
+        **_score_metrics(scores),
+    }
+
+
+def _env_kwargs(
+    name: str, preset: Preset, life_loss: bool, env_module: str | None, input: str, fdr: str,
+    edr: EDR | None, frame_stack: int, obs_dtype: str,
+) -> dict[str, Any]:  # fmt: skip
+    """What ``make_atari_env`` takes for this input (training and evaluation alike)."""
+    return {
+        "game": name,
+        "preset": preset,
+        "life_loss": life_loss,
+        "module": env_module,
+        "fdr": fdr if input != "edr" else "none",
+        "edr": edr if input != "fdr" else None,
+        "frame_stack": frame_stack,
+        "obs_dtype": obs_dtype,
+    }
+
+
+def _network(env_kwargs: dict[str, Any], core: Core) -> tuple[PAACNetwork, dict[str, Any]]:
+    """A fresh network for the observation and actions of these envs, and its arguments."""
+    probe = make_atari_env(mode="single", **env_kwargs)
+    channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
+    probe.close()
+    arguments = {"in_channels": channels, "num_actions": actions, "core": core}
+    return PAACNetwork(**arguments), arguments
+
+
+def _evaluate(
+    network: PAACNetwork, env_kwargs: dict[str, Any], seed: int, plays: int, max_steps: int
+) -> list[float]:
+    """Raw scores of ``plays`` whole games on one evaluation env (no life loss, no clipping)."""
+    env = _env(network, num_envs=1, mode="single", train=False, **env_kwargs)
+    env.set_seed(seed + 1)
+    try:
+        return play(network, env, plays, max_steps)
+    finally:
+        env.close()
+
+
+def _write_results(out_dir: Path, history: list[dict], scores: list[float], title: str) -> None:
+    write_json_atomic(out_dir / HISTORY, history)
+    write_json_atomic(out_dir / SCORES, scores)
+    save_score_curve(history, out_dir / "training_curve.png", title=title)
+
+
+def _score_metrics(scores: list[float]) -> dict[str, float | int]:
+    return {
         "eval/plays": len(scores),
         "eval/min": float(np.min(scores)),
         "eval/max": float(np.max(scores)),
         "eval/mean": float(np.mean(scores)),
     }
+
+
+def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[str, Any]:
+    """Score the network of an Atari run's latest checkpoint, for a run stopped before its end.
+
+    Rebuilds the envs and network from the run's record (``run.json``), plays ``plays`` games
+    (the run's ``eval_plays`` by default) as the run would have, and writes ``eval_scores.json``,
+    ``history.json``, the training curve and ``checkpoint_eval.json`` (these metrics, with the
+    env steps the checkpoint had trained) beside the record. Returns the metrics.
+    """
+    run_dir = Path(run_dir)
+    record = read_record(run_dir / "run.json")
+    task = instantiate(record["config"]["task"]).keywords  # train_paac's arguments, EDR built
+    name = task["env_id"] or task["game"]
+    env_kwargs = _env_kwargs(
+        name, task["preset"], task["life_loss"], task["env_module"], task["input"], task["fdr"],
+        task["edr"], task["frame_stack"], task["obs_dtype"],
+    )  # fmt: skip
+    network, _ = _network(env_kwargs, task["core"])
+    state = torch.load(run_dir / CHECKPOINT, weights_only=True)
+    network.load_state_dict(state["network"])
+    scores = _evaluate(
+        network, env_kwargs, record["seed"], plays or task["eval_plays"], task["eval_max_steps"]
+    )
+    _write_results(run_dir, state["history"], scores, f"{name}, {INPUT_NAMES[task['input']]}")
+    metrics = {"train/frames": state["frames"], **_score_metrics(scores)}
+    write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
+    return metrics
+
+
+if __name__ == "__main__":
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m edr.tasks.atari", description=evaluate_checkpoint.__doc__.split("\n")[0]
+    )
+    parser.add_argument("run_dir", type=Path, help="the run's folder (run.json, checkpoint.pt)")
+    parser.add_argument("--plays", type=int, default=None, help="games (default: the run's)")
+    args = parser.parse_args()
+    print(json.dumps(evaluate_checkpoint(args.run_dir, args.plays), indent=1))
 
 
 def load_network(run_dir: str | Path) -> PAACNetwork:
