@@ -14,7 +14,6 @@ from edr.representations import (
     EDR,
     FDR,
     TVL1,
-    BroxFlow,
     DVSCamera,
     Farneback,
     GrayDiff,
@@ -79,11 +78,6 @@ def test_rgb_diff_and_fdr_values() -> None:
     assert diff[0, 0, 2].eq(1).all() and diff[0, 0, :2].eq(0).all()
     assert FDR()(clip).max() == 1.0
     assert FDR(color="gray")(clip).shape == (1, 2, 1, 2, 2)
-
-
-def test_brox_says_it_is_not_yet_available() -> None:
-    with pytest.raises(NotImplementedError, match="not yet available"):
-        BroxFlow()
 
 
 def test_mpeg_flow_from_a_file_and_a_corrupt_one(tmp_path, moving_right) -> None:

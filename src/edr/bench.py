@@ -39,6 +39,7 @@ from edr.representations import (
     EDR,
     FDR,
     TVL1,
+    BroxFlow,
     DVSCamera,
     EDRState,
     Farneback,
@@ -192,6 +193,7 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
         whole("DVS simulator", "numba events + binning", DVSCamera(), few),
         whole("Farneback flow", "OpenCV", Farneback(), few),
         whole("TV-L1 flow", "OpenCV contrib", TVL1(), few),
+        whole("Brox flow", "torch, CPU, pairs batched", BroxFlow(), few),
         Job(
             "EDR K=1 soft gray, Atari batch",
             f"fused kernel, step(inplace=True) per frame, {atari.shape[0]} envs",

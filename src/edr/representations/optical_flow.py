@@ -1,4 +1,4 @@
-"""Dense optical flow rows of Table 2 (OpenCV): Farneback and TV-L1; Brox is not yet here.
+"""Dense optical flow rows of Table 2 (OpenCV): Farneback and TV-L1 (Brox: ``brox.py``, torch).
 
 Each maps a clip to the flow between consecutive frames, (B, T, C, H, W) -> (B, T-1, 2, H, W),
 channels (dx, dy) in pixels per frame, computed on 8-bit gray frames (float input is taken on
@@ -82,13 +82,3 @@ class TVL1(OpticalFlow):
 
     def _pair(self, prev: np.ndarray, nxt: np.ndarray) -> np.ndarray:
         return self._tvl1.calc(prev, nxt, None)
-
-
-class BroxFlow(OpticalFlow):
-    """Brox et al. (2004) flow, the paper's strongest baseline: not yet available here."""
-
-    def __init__(self, **_: object) -> None:
-        raise NotImplementedError(
-            "Brox optical flow is not yet available in this suite (it needs a GPU flow library "
-            "and is planned in a later issue); use representation=tvl1 or representation=farneback"
-        )
