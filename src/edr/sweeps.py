@@ -12,7 +12,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-ATARI_TINY = ("task.total_frames=400", "task.lr_decay_frames=400", "task.eval_max_steps=50")
+# 100 agent steps per env: a lost life ends a training episode here, so Breakout has scores.
+ATARI_TINY = ("task.total_frames=400", "task.lr_decay_frames=400", "task.eval_max_steps=50",
+              "task.life_loss=true")  # fmt: skip
 LTC_TINY = ("backbone.widths=[4,4,4,4,4]", "backbone.fc=16")
 TINY_SWEEPS = {
     "table1": ("experiment=table1_atari", "game=pong,breakout", "task.input=fdr,fdr_edr",
