@@ -27,10 +27,10 @@ def test_a_known_translation_within_a_tenth_of_a_pixel_and_better_than_farneback
     assert flow.shape == (1, 1, 2, 240, 320) and flow.dtype == torch.float32
     estimate = flow[0, 0].numpy()
     inner = estimate[:, 20:-20, 20:-20]
-    assert np.median(inner[0]) == pytest.approx(2.3, abs=0.1)  # dx: rightwards
-    assert np.median(inner[1]) == pytest.approx(-1.4, abs=0.1)  # dy: upwards
+    assert np.median(inner[0]) == pytest.approx(2.3, abs=0.02)  # dx: rightwards, unbiased
+    assert np.median(inner[1]) == pytest.approx(-1.4, abs=0.02)  # dy: upwards
     brox = endpoint_error(estimate, truth)
-    assert brox < 0.15
+    assert brox < 0.1
     assert brox < endpoint_error(Farneback()(clip)[0, 0].numpy(), truth)
 
 
@@ -55,7 +55,7 @@ def test_batches_pairs_and_a_constant_image_has_no_motion() -> None:
     clip = torch.full((2, 3, 3, 40, 48), 128, dtype=torch.uint8)
     flow = BroxFlow()(clip)
     assert flow.shape == (2, 2, 2, 40, 48)
-    assert torch.isfinite(flow).all() and flow.abs().max() == 0
+    assert torch.isfinite(flow).all() and flow.abs().max() < 1e-6
 
 
 def test_settings_checked() -> None:
