@@ -45,7 +45,6 @@ from torchrl.envs import (
     RewardSum,
     SerialEnv,
     SignTransform,
-    StepCounter,
     ToTensorImage,
     TransformedEnv,
 )
@@ -266,7 +265,7 @@ def make_atari_env(
     else:
         raise ValueError(f"backend must be envpool, parallel, serial or single, got {mode!r}")
     parts = ["fdr"] if fdr != "none" else []
-    transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"]), StepCounter()]
+    transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"])]
     if preset == "paac" and train:
         transforms.append(SignTransform(in_keys=["reward"]))
     if edr is not None:
