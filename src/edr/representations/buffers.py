@@ -26,7 +26,7 @@ class Recycler:
         self.limit_bytes, self.min_bytes = limit_bytes, min_bytes
         self._free: OrderedDict[int, list[np.ndarray]] = OrderedDict()  # nbytes -> owners, LRU
         self._free_bytes = 0
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # a garbage collection inside may give a buffer back
 
     def empty(self, shape: tuple[int, ...], dtype: torch.dtype = torch.float32) -> torch.Tensor:
         """An uninitialised CPU tensor, on recycled memory when it is big."""
