@@ -211,12 +211,17 @@ class EDR(Representation):
                 ema = torch.empty(shape, dtype=torch.float32)
                 restart = np.ones(b, np.bool_)
             else:
-                ema = state.ema.detach().to(torch.float32).contiguous()
-                if not inplace and ema.data_ptr() == state.ema.data_ptr():
-                    ema = ema.clone()  # the caller's state stays as it was
+                source = state.ema.detach().to(torch.float32).contiguous()
+                # Not inplace: the kernel copies the caller's state into a new one as it goes
+                # (a torch copy between two launches would wake torch's threads against numba's).
+                ema = source if inplace else torch.empty_like(source)
                 restart = reset.cpu().numpy() if reset is not None else np.zeros(b, np.bool_)
             events = self._fused(
-                frame.unsqueeze(1), ema, restart, None if out is None else out.unsqueeze(1)
+                frame.unsqueeze(1),
+                ema,
+                restart,
+                None if out is None else out.unsqueeze(1),
+                source=None if state is None else source,
             )
             return events[:, 0], EDRState(ema)
         events, state = self._step_torch(frame, state, reset)
@@ -292,9 +297,11 @@ class EDR(Representation):
         ema: torch.Tensor,
         restart: np.ndarray,
         out: torch.Tensor | None = None,
+        source: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """frames (B, T, C, H, W) -> (B, T, C'*2*K', H, W) in ``out_dtype`` (into ``out`` when
-        given) through ``kernels.edr_kernel``, carrying the EMA in ``ema`` (updated in place)."""
+        given) through ``kernels.edr_kernel``, carrying the EMA in ``ema`` (updated in place;
+        first copied from ``source``, a state of the same shape, where that is another tensor)."""
         b, t, c_in, h, w = frames.shape
         c, k = ema.shape[1], ema.shape[2]
         k_out = 1 if self.combine == "sum" else k
@@ -321,6 +328,8 @@ class EDR(Representation):
             self.return_form == "log",
             self.threshold == "hard",
             self.combine == "sum",
+            (ema if source is None else source).view(b, c, k, h * w).numpy(),
+            source is not None and source.data_ptr() != ema.data_ptr(),
             ema.view(b, c, k, h * w).numpy(),
             restart,
             events.view(b, t, c, k_out, 2, h * w).numpy(),

@@ -124,6 +124,8 @@ def edr_kernel(
     log_form,
     hard,
     sum_k,
+    ema_source,
+    copy_state,
     ema,
     restart,
     out,
@@ -135,6 +137,8 @@ def edr_kernel(
     gray    convert 3 input channels to one luma channel
     alpha, beta  (K,) float32
     on_th, off_th  (K_out,) thresholds already in the domain of ``log_form``
+    ema_source, copy_state  with ``copy_state``, each chunk's state is first copied from
+            ``ema_source`` (B, C, K, P) into ``ema`` (rows that restart excepted)
     ema     (B, C, K, P) float32 state, updated in place
     restart (B,) bool: rows whose EMA restarts from the first frame of ``x``
     out     (B, T, C, K_out, 2, P) float32, K_out = 1 if ``sum_k`` else K; last-but-one axis ON, OFF
@@ -147,6 +151,10 @@ def edr_kernel(
         b, lo, n = _chunk(job, n_chunks, n_pix)
         intensity = np.empty(n, np.float32)
         acc = np.empty(n, np.float32)
+        if copy_state and not restart[b]:
+            for c in range(n_chan):
+                for k in range(n_k):
+                    ema[b, c, k, lo : lo + n] = ema_source[b, c, k, lo : lo + n]
         for t in range(n_frames):
             for c in range(n_chan):
                 _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, intensity)
