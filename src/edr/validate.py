@@ -56,6 +56,7 @@ PositiveFloat = Annotated[float, Range(0, open=True)]
 NonNegativeFloat = Annotated[float, Range(0)]
 Fraction = Annotated[float, Range(0, 1, open=True)]
 BelowOne = Annotated[float, Range(0, 1, open_high=True)]  # [0, 1)
+OpenFraction = Annotated[float, Range(0, 1, open=True, open_high=True)]  # (0, 1)
 
 # The torchrl loggers a task can write to, and the package each needs.
 LOGGER_PACKAGES = {"csv": None, "tensorboard": "tensorboard", "mlflow": "mlflow", "wandb": "wandb"}

@@ -4,8 +4,9 @@ runs batched on the CPU and, unchanged, on a GPU.
 Energy: one robust (Charbonnier, ``psi(s2) = sqrt(s2 + 1e-6)``) penalty over brightness
 constancy plus ``gamma`` times gradient constancy (the paper's data term, as OpenCV's CUDA class
 has it: one penalty, so that a gradient mismatch cannot stiffen the system on its own), and
-``alpha`` times a robust smoothness term on the flow's gradient. Minimised coarse to fine (a pyramid scaled by ``scale_factor`` per level): at
-each level the second frame is warped by the current flow, and ``inner_iterations`` lagged
+``alpha`` times a robust smoothness term on the flow's gradient. Minimised coarse to fine (a
+pyramid scaled by ``scale_factor`` per level): at each level the second frame is warped by the
+current flow, and ``inner_iterations`` lagged
 fixed-point steps linearise the data term around it, each solved for the flow increment by
 ``solver_iterations`` red-black SOR sweeps. Defaults are OpenCV's CUDA ``BroxOpticalFlow``'s
 (alpha 0.197, gamma 50, scale 0.8, inner 5, solver 10), the settings action-recognition
@@ -20,7 +21,7 @@ import torch
 import torch.nn.functional as F
 
 from edr.representations.base import FlowRepresentation, check_clip, to_gray
-from edr.validate import Fraction, PositiveFloat, PositiveInt, check_arguments
+from edr.validate import OpenFraction, PositiveFloat, PositiveInt, check_arguments
 
 EPS2 = 1e-6  # Charbonnier's epsilon squared (eps = 0.001)
 SOR_OMEGA = 1.99  # over-relaxation of the red-black sweeps (OpenCV's CUDA class uses 1.99)
@@ -194,15 +195,13 @@ class BroxFlow(FlowRepresentation):
         self,
         alpha: PositiveFloat = 0.197,
         gamma: PositiveFloat = 50.0,
-        scale_factor: Fraction = 0.8,
+        scale_factor: OpenFraction = 0.8,
         inner_iterations: PositiveInt = 5,
         solver_iterations: PositiveInt = 10,
         min_size: PositiveInt = 16,
     ) -> None:
         super().__init__()
         check_arguments(self, locals())
-        if scale_factor >= 1:
-            raise ValueError(f"BroxFlow: scale_factor={scale_factor}: expected a number < 1")
         self.settings = {
             "alpha": alpha,
             "gamma": gamma,

@@ -65,10 +65,11 @@ class GrayDiff(Representation):
         """(B, T, C, H, W) -> (B, T-1, 1, H, W) float32, into ``out`` when given."""
         check_clip(frames, min_frames=2, name="frames")
         b, t, c, h, w = frames.shape
-        target = buffers.output(out, (b, t - 1, 1, h, w), torch.float32, frames.device)
+        shape = (b, t - 1, 1, h, w)
         fusable = frames.device.type == "cpu" and frames.dtype in (torch.uint8, torch.float32)
         fused = self.fast and fusable and not (torch.is_grad_enabled() and frames.requires_grad)
-        if fused and buffers.writable(target):
+        if fused and (out is None or buffers.writable(out)):
+            target = buffers.output(out, shape, torch.float32, frames.device)
             kernels.launch(
                 kernels.gray_diff_kernel,
                 frames.contiguous().view(b, t, c, h * w).numpy(),
@@ -78,7 +79,9 @@ class GrayDiff(Representation):
             return target
         gray = to_gray(frames, channel_dim=2)  # (B, T, 1, H, W)
         diff = (self.scale * (gray[:, 1:] - gray[:, :-1])).float()
-        return diff if out is None else target.copy_(diff)
+        return (
+            diff if out is None else buffers.output(out, shape, diff.dtype, diff.device).copy_(diff)
+        )
 
 
 class RGBDiff(Representation):

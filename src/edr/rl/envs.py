@@ -163,7 +163,7 @@ class EnvPoolAtari(EnvBase):
         self._pool = None  # made by the first reset or set_seed (making it takes ~1 s)
         self._seed = 0
         actions = int(envpool.make_spec(task).action_space.n)
-        self._pixels = torch.zeros(num_envs, SCREEN, SCREEN, 3, dtype=torch.uint8)
+        self._pixels: torch.Tensor | None = None  # (N, H, W, 3) the latest frames; first reset
         n = (num_envs,)
         self.observation_spec = Composite(
             pixels=Bounded(0, 255, shape=(*n, SCREEN, SCREEN, 3), dtype=torch.uint8), shape=n
@@ -212,15 +212,18 @@ class EnvPoolAtari(EnvBase):
             batch_size=self.batch_size,
         )
 
-    def _set_seed(self, seed: int | None) -> None:
-        """The next reset makes the pool again, seeded: EnvPool takes its seed when made."""
-        self.close(raise_if_closed=False)
-        self._seed = 0 if seed is None else seed
-
-    def close(self, *, raise_if_closed: bool = True) -> None:
+    def _drop_pool(self) -> None:
         if self._pool is not None:
             self._pool.close()
             self._pool = None
+
+    def _set_seed(self, seed: int | None) -> None:
+        """The next reset makes the pool again, seeded: EnvPool takes its seed when made."""
+        self._drop_pool()
+        self._seed = 0 if seed is None else seed
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        self._drop_pool()
         super().close(raise_if_closed=raise_if_closed)
 
 

@@ -3,8 +3,9 @@
 Top to bottom: envs and network; the loop (torchrl's collector gathers ``rollout_steps`` steps
 of every env; n-step returns bootstrapped from the value of the state after the rollout;
 PAAC's loss (:func:`edr.rl.paac.paac_loss`); Adam or PAAC's TensorFlow-style RMSprop with the
-gradient's L2 norm clipped and the learning rate decaying linearly to 0); checkpoints; then ``eval_plays`` full games scored
-(min / max / mean, Table 1's columns) and the training curve (score against env steps).
+gradient's L2 norm clipped and the learning rate decaying linearly to 0); checkpoints; then
+``eval_plays`` full games scored (min / max / mean, Table 1's columns) and the training curve
+(score against env steps).
 
 Frames here count env steps — agent decisions, summed over envs; with the frame skip of 4
 each is 4 emulator frames.
