@@ -83,6 +83,18 @@ class PAACNetwork(nn.Module):
         self.policy = nn.Linear(features, num_actions)
         self.value = nn.Linear(features, 1)
         self.sequence = False  # set by the trainer while it replays rollouts (B, T, ...)
+        self._init_weights()
+
+    def _init_weights(self) -> None:
+        """Orthogonal weights, zero biases (as OpenAI's A2C): gain sqrt(2) before a ReLU, 0.01
+        for the policy (it starts uniform, its logits not a random function of the frame) and
+        1 for the value. The recurrent cells keep their own initialisation."""
+        relu_layers = [m for m in (*self.trunk, *getattr(self, "embed", ())) if m._parameters]
+        for layer, gain in [*((m, math.sqrt(2)) for m in relu_layers), (self.policy, 0.01),
+                            (self.value, 1.0)]:  # fmt: skip
+            with torch.no_grad():  # via a contiguous tensor: the trunk's weights are channels-last
+                layer.weight.copy_(nn.init.orthogonal_(torch.empty(layer.weight.shape), gain))
+                layer.bias.zero_()
 
     def _step(
         self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor
