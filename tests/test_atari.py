@@ -1,4 +1,5 @@
-"""PAAC: the recurrent network's two modes agree, and a tiny Pong run writes a sound record."""
+"""PAAC: the recurrent network restarts with episodes, n-step returns, and a tiny Pong run
+writes a sound record."""
 
 from __future__ import annotations
 
@@ -9,38 +10,34 @@ import pytest
 import torch
 
 import edr.tasks.atari as atari
-from edr.rl.paac import PAACNetwork
+from edr.rl.paac import PAACNetwork, n_step_returns
 from edr.run import run
 from edr.tasks.atari import evaluate_checkpoint, load_network
 
 
-@pytest.mark.parametrize("core", ["lstm", "ftlstm", "none"])
-def test_stepping_equals_replaying_the_rollout(core: str) -> None:
+@pytest.mark.parametrize("core", ["lstm", "ftlstm"])
+def test_an_episode_start_cuts_the_recurrent_memory(core: str) -> None:
     torch.manual_seed(0)
     net = PAACNetwork(5, 6, core)
-    n, t = 3, 4
-    obs = torch.rand(n, t, 5, 84, 84)
-    is_init = torch.zeros(n, t, 1, dtype=torch.bool)
-    is_init[1, 2] = True  # env 1 starts a new episode at step 2
-    h = c = torch.zeros(n, net.state_size)
-    stepped = []
-    for step in range(t):
-        logits, value, h, c = net(obs[:, step], h, c, is_init[:, step])
-        stepped.append((logits, value))
-    net.sequence = True
-    first = torch.zeros(n, t, net.state_size)
-    logits_seq, value_seq, _, _ = net(obs, first, first, is_init)
-    torch.testing.assert_close(logits_seq, torch.stack([s[0] for s in stepped], 1))
-    torch.testing.assert_close(value_seq, torch.stack([s[1] for s in stepped], 1))
-    if core != "none":  # the reset really cut env 1's memory
-        net.sequence = False
-        fresh, _, _, _ = net(
-            obs[1:2, 2],
-            torch.zeros(1, net.state_size),
-            torch.zeros(1, net.state_size),
-            is_init[1:2, 2],
-        )
-        torch.testing.assert_close(stepped[2][0][1:2], fresh)
+    obs = torch.rand(2, 5, 84, 84)
+    h = c = torch.rand(2, net.state_size)
+    is_init = torch.tensor([[False], [True]])  # env 1 starts a new episode
+    logits, _, _, _ = net(obs, h, c, is_init)
+    zeros = torch.zeros(1, net.state_size)
+    fresh, _, _, _ = net(obs[1:], zeros, zeros, is_init[1:])
+    torch.testing.assert_close(logits[1:], fresh)
+    remembered, _, _, _ = net(obs[:1], zeros, zeros, is_init[:1])
+    assert not torch.allclose(logits[:1], remembered)  # env 0 kept its state
+
+
+def test_n_step_returns_bootstrap_and_stop_at_episode_ends() -> None:
+    rewards = torch.tensor([[1.0, 0.0, 1.0], [0.0, 0.0, 0.0]]).unsqueeze(-1)  # (N=2, T=3, 1)
+    dones = torch.tensor([[False, True, False], [False, False, False]]).unsqueeze(-1)
+    bootstrap = torch.tensor([[10.0], [2.0]])
+    returns = n_step_returns(rewards, dones, bootstrap, gamma=0.5).squeeze(-1)
+    # env 0: the episode ends at step 1, so steps 0-1 see no bootstrap; step 2 sees 10
+    torch.testing.assert_close(returns[0], torch.tensor([1.0, 0.0, 1.0 + 5.0]))
+    torch.testing.assert_close(returns[1], torch.tensor([0.25, 0.5, 1.0]))
 
 
 def test_float16_observations_go_through_the_network_in_float32() -> None:
@@ -61,22 +58,22 @@ def test_ft_lstm_recurrence_stays_within_channels() -> None:
 
 def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> None:
     overrides = ("task=atari", "debug=tiny", "representation.color=gray")
-    real_targets, calls = atari.n_step_targets, {"n": 0}
+    real_returns, calls = atari.n_step_returns, {"n": 0}
 
     def dies_after_update_60(*args, **kwargs):
         calls["n"] += 1
         if calls["n"] > 60:  # the checkpoint of update 50 (1,000 frames) is on disk
             raise KeyboardInterrupt("killed")
-        return real_targets(*args, **kwargs)
+        return real_returns(*args, **kwargs)
 
-    monkeypatch.setattr(atari, "n_step_targets", dies_after_update_60)
+    monkeypatch.setattr(atari, "n_step_returns", dies_after_update_60)
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
     assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1000
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
     assert evaluated["train/frames"] == 1000 and evaluated["eval/plays"] == 1
     assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
-    monkeypatch.setattr(atari, "n_step_targets", real_targets)
+    monkeypatch.setattr(atari, "n_step_returns", real_returns)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
 
     record = json.loads((tmp_path / "run.json").read_text())

@@ -7,9 +7,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from torchrl.envs import InitTracker
 
 from edr.representations import EDR
+from edr.rl.envs import make_atari_env
 from edr.rl.optim import TFRMSprop, make_optimizer
+from edr.rl.paac import PAACNetwork
+from edr.rl.rollout import Actor
 from edr.tasks.atari import train_paac
 from edr.validate import ConfigError
 
@@ -47,6 +51,34 @@ def test_torch_rmsprop_is_not_tf_rmsprop_at_paac_settings() -> None:
     assert steps["tf"] == pytest.approx(0.01 * 1e-3 / (1.0 + 1e-8 + 0.1 - 0.01) ** 0.5, rel=1e-3)
     with pytest.raises(ValueError, match="adam"):
         make_optimizer("sgd", [p], lr=0.1)
+
+
+def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes(monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
+    env = make_atari_env(
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, mode="serial",
+        edr=EDR(color="gray"), frame_stack=2, keep_inputs=False,
+    )  # fmt: skip
+    env.append_transform(InitTracker())
+    env.set_seed(0)
+    torch.manual_seed(0)
+    network = PAACNetwork(env.observation_spec["observation"].shape[-3], 3, "ftlstm")
+    actor, rewards, dones = Actor(env, network), [], []
+    for _ in range(6):  # 30 steps: every episode (4 drops) ends within them
+        rollout = actor.rollout(5)
+        assert rollout.logits.shape == (2, 5, 3) and rollout.values.shape == (2, 5, 1)
+        assert rollout.bootstrap.shape == (2, 1) and not rollout.bootstrap.requires_grad
+        # each rollout's graph starts at its first step: a backward never reaches the last one's
+        (rollout.logits.sum() + rollout.values.sum()).backward()
+        rewards.append(rollout.rewards.squeeze(-1))
+        dones.append(rollout.dones.squeeze(-1))
+        if rollout.scores:
+            break
+    rewards, dones = torch.cat(rewards, 1), torch.cat(dones, 1)  # (2, T)
+    end = int(dones[0].nonzero()[0])
+    assert dones[:, end].all()  # both games last the same number of steps
+    assert rollout.scores == rewards[:, : end + 1].sum(1).tolist()
+    env.close()
 
 
 def _random_catch_score(episodes: int = 400) -> float:

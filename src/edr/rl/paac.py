@@ -6,12 +6,9 @@ recurrent term is, per channel, a map from every location to every location of t
 as FT-RCN; no recurrent weight couples channels) or ``none`` (FC 256, the original PAAC).
 Heads: policy logits and state value.
 
-In torchrl the network is one ``TensorDictModule``: it reads the observation, the recurrent
-state (``rs_h``, ``rs_c``, primed with zeros by :func:`recurrent_primer`) and ``is_init``
-(torchrl's ``InitTracker``), and writes ``logits``, ``state_value`` and the next state. Normally
-a batch (..., C, H, W) is one step; a rollout (B, T, C, H, W) is replayed from its first state,
-restarting wherever ``is_init`` is set (while ``network.sequence`` is True) — truncated
-backpropagation through the rollout, as PAAC did.
+The network steps any batch of envs (..., C, H, W) with its recurrent state (``h``, ``c``),
+restarting from zeros wherever ``is_init`` is set; :class:`edr.rl.rollout.Actor` runs it over
+rollouts and :func:`paac_loss` differentiates what it output there.
 """
 
 from __future__ import annotations
@@ -20,11 +17,7 @@ import math
 from typing import Literal
 
 import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.data import Unbounded
-from torchrl.envs import TensorDictPrimer
 
 Core = Literal["lstm", "ftlstm", "none"]
 
@@ -56,7 +49,7 @@ class FeatureTrackingLSTMCell(nn.Module):
 
 
 class PAACNetwork(nn.Module):
-    """(obs, h, c, is_init) -> (logits, value, h', c'); obs (B, C, 84, 84) or (B, T, C, 84, 84)."""
+    """(obs, h, c, is_init) -> (logits, value, h', c'); obs (..., C, 84, 84)."""
 
     def __init__(
         self, in_channels: int, num_actions: int, core: Core = "lstm", hidden: int = 256
@@ -82,7 +75,6 @@ class PAACNetwork(nn.Module):
             features = hidden
         self.policy = nn.Linear(features, num_actions)
         self.value = nn.Linear(features, 1)
-        self.sequence = False  # set by the trainer while it replays rollouts (B, T, ...)
         self._init_weights()
 
     def _init_weights(self) -> None:
@@ -114,61 +106,50 @@ class PAACNetwork(nn.Module):
     def forward(
         self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor, is_init: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        if not self.sequence:  # one step of any batch of envs: (..., C, H, W)
-            batch = obs.shape[:-3]
-            keep = (~is_init.reshape(-1, 1)).to(h.dtype)  # a new episode starts from zeros
-            flat_h, flat_c = h.reshape(-1, h.shape[-1]) * keep, c.reshape(-1, c.shape[-1]) * keep
-            out = self._step(obs.reshape(-1, *obs.shape[-3:]), flat_h, flat_c)
-            return tuple(o.reshape(*batch, o.shape[-1]) for o in out)
-        h, c = h[:, 0], c[:, 0]  # (N, T, ...): replay each env's rollout from its first state
-        outs = []
-        for step in range(obs.shape[1]):
-            keep = (~is_init[:, step]).to(h.dtype)
-            out = self._step(obs[:, step], h * keep, c * keep)
-            h, c = out[2], out[3]
-            outs.append(out)
-        return tuple(torch.stack(parts, 1) for parts in zip(*outs, strict=True))
+        """One step of any batch of envs: obs (..., C, H, W), h and c (..., S), is_init (..., 1)
+        -> logits (..., A), value (..., 1), h' and c' (..., S)."""
+        batch = obs.shape[:-3]
+        keep = (~is_init.reshape(-1, 1)).to(h.dtype)  # a new episode starts from zeros
+        flat_h, flat_c = h.reshape(-1, h.shape[-1]) * keep, c.reshape(-1, c.shape[-1]) * keep
+        out = self._step(obs.reshape(-1, *obs.shape[-3:]), flat_h, flat_c)
+        return tuple(o.reshape(*batch, o.shape[-1]) for o in out)
 
 
-def paac_module(network: PAACNetwork) -> TensorDictModule:
-    """The network as a torchrl module over the keys its docstring names."""
-    return TensorDictModule(
-        network,
-        in_keys=["observation", "rs_h", "rs_c", "is_init"],
-        out_keys=["logits", "state_value", ("next", "rs_h"), ("next", "rs_c")],
-    )
-
-
-def recurrent_primer(network: PAACNetwork) -> TensorDictPrimer:
-    """Zero recurrent state in every reset, so the collector carries it from step to step."""
-    spec = Unbounded(shape=(network.state_size,), dtype=torch.float32)
-    return TensorDictPrimer(rs_h=spec, rs_c=spec.clone(), reset_key="_reset", expand_specs=True)
+def n_step_returns(
+    rewards: torch.Tensor, dones: torch.Tensor, bootstrap: torch.Tensor, gamma: float
+) -> torch.Tensor:
+    """rewards, dones (N, T, 1), bootstrap (N, 1) -> the n-step returns (N, T, 1): each step's
+    discounted rewards to the rollout's end, then the bootstrap value, cut where an episode ends."""
+    returns = torch.empty_like(rewards)
+    running = bootstrap
+    alive = 1.0 - dones.to(rewards.dtype)
+    for t in reversed(range(rewards.shape[1])):
+        running = rewards[:, t] + gamma * running * alive[:, t]
+        returns[:, t] = running
+    return returns
 
 
 def paac_loss(
-    network: PAACNetwork,
-    data: TensorDictBase,
+    logits: torch.Tensor,
+    values: torch.Tensor,
+    actions: torch.Tensor,
+    returns: torch.Tensor,
     entropy_coeff: float,
     critic_coeff: float,
     scale: float,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-    """PAAC's loss on a rollout (N, T) with ``advantage`` and ``value_target`` (N, T, 1):
+    """PAAC's loss from a rollout's logits (N, T, A), values (N, T, 1), actions (N, T) and
+    returns R (N, T, 1), with the advantage A = R - V (no gradient through V there):
 
     ``scale * (mean(-(log pi(a) * A + entropy_coeff * H)) + critic_coeff * mean((R - V)^2))``
-    (Clemente et al.: scale 5, entropy 0.02, critic 0.25). The rollout is replayed from its first
-    recurrent state. Returns the loss and its parts (detached) for the logs.
+    (Clemente et al.: scale 5, entropy 0.02, critic 0.25). Returns the loss and its parts
+    (detached) for the logs.
     """
-    network.sequence = True
-    try:
-        logits, values, _, _ = network(
-            data["observation"], data["rs_h"], data["rs_c"], data["is_init"]
-        )  # (N, T, A), (N, T, 1)
-    finally:
-        network.sequence = False
     log_pi = logits.log_softmax(-1)
-    taken = (log_pi * data["action"].to(log_pi.dtype)).sum(-1)  # actions one-hot (N, T, A)
+    taken = log_pi.gather(-1, actions.unsqueeze(-1)).squeeze(-1)  # (N, T)
     entropy = -(log_pi.exp() * log_pi).sum(-1)
-    actor = -(taken * data["advantage"].squeeze(-1) + entropy_coeff * entropy).mean()
-    critic = critic_coeff * (data["value_target"] - values).pow(2).mean()
+    advantage = (returns - values).detach().squeeze(-1)
+    actor = -(taken * advantage + entropy_coeff * entropy).mean()
+    critic = critic_coeff * (returns - values).pow(2).mean()
     parts = {"loss_actor": actor, "loss_critic": critic, "entropy": entropy.mean()}
     return scale * (actor + critic), {k: v.detach() for k, v in parts.items()}

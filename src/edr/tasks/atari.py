@@ -1,8 +1,8 @@
 """Atari with PAAC (the paper's Table 1 and Figure 5): FDR or FDR+EDR input, EDR on the fly.
 
-Top to bottom: envs and network; the loop (torchrl's collector gathers ``rollout_steps`` steps
-of every env; n-step returns bootstrapped from the value of the state after the rollout;
-PAAC's loss (:func:`edr.rl.paac.paac_loss`); Adam or PAAC's TensorFlow-style RMSprop with the
+Top to bottom: envs and network; the loop (:class:`edr.rl.rollout.Actor` plays
+``rollout_steps`` steps of every env, the network's outputs kept for the loss; n-step returns
+bootstrapped from the value of the state after the rollout; PAAC's loss (:func:`edr.rl.paac.paac_loss`); Adam or PAAC's TensorFlow-style RMSprop with the
 gradient's L2 norm clipped and the learning rate decaying linearly to 0); checkpoints; then
 ``eval_plays`` full games scored (min / max / mean, Table 1's columns) and the training curve
 (score against env steps).
@@ -22,13 +22,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 from hydra.utils import instantiate
-from tensordict import TensorDictBase
-from tensordict.nn import InteractionType, set_interaction_type
-from torch.distributions import OneHotCategorical
-from torchrl.collectors import Collector
 from torchrl.envs import InitTracker, TransformedEnv
-from torchrl.envs.utils import step_mdp
-from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
@@ -36,7 +30,8 @@ from edr.records import read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, Preset, make_atari_env, rom_fingerprint
 from edr.rl.optim import OptimizerName, make_optimizer
-from edr.rl.paac import Core, PAACNetwork, paac_loss, paac_module, recurrent_primer
+from edr.rl.paac import Core, PAACNetwork, n_step_returns, paac_loss
+from edr.rl.rollout import Actor
 from edr.tasks.checkpoints import (
     CHECKPOINT,
     load_checkpoint,
@@ -62,58 +57,11 @@ SCORES = "eval_scores.json"  # the raw score of every evaluation game
 DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # lr=None: ours for Adam; PAAC's for RMSprop
 
 
-def _env(network: PAACNetwork, **kwargs: Any) -> TransformedEnv:
-    """An Atari env that also tracks episode starts and primes ``network``'s recurrent state."""
+def _env(**kwargs: Any) -> TransformedEnv:
+    """An Atari env that also marks where episodes start (``is_init``)."""
     env = make_atari_env(**kwargs)
     env.append_transform(InitTracker())
-    env.append_transform(recurrent_primer(network))
     return env
-
-
-def _actor(network: PAACNetwork, env: TransformedEnv) -> ProbabilisticActor:
-    return ProbabilisticActor(
-        paac_module(network),
-        in_keys=["logits"],
-        distribution_class=OneHotCategorical,
-        spec=env.action_spec,
-        return_log_prob=True,
-    )
-
-
-@torch.no_grad()
-def n_step_targets(data: TensorDictBase, network: PAACNetwork, gamma: float) -> TensorDictBase:
-    """Add ``value_target`` and ``advantage`` (N, T, 1) to a rollout (N, T) from the collector."""
-    last = data[:, -1]["next"]
-    _, bootstrap, _, _ = network(
-        last["observation"], last["rs_h"], last["rs_c"], torch.zeros_like(last["done"])
-    )  # (N, 1)
-    rewards, done = data["next", "reward"], data["next", "done"].to(bootstrap.dtype)
-    returns = torch.empty_like(rewards)
-    running = bootstrap
-    for t in reversed(range(rewards.shape[1])):
-        running = rewards[:, t] + gamma * running * (1 - done[:, t])
-        returns[:, t] = running
-    data.set("value_target", returns)
-    data.set("advantage", returns - data["state_value"])
-    return data
-
-
-@torch.no_grad()
-def play(network: PAACNetwork, env: TransformedEnv, plays: int, max_steps: int) -> list[float]:
-    """Scores of ``plays`` whole games (raw rewards), the policy sampling its actions."""
-    actor = _actor(network, env)
-    scores = []
-    with set_interaction_type(InteractionType.RANDOM):
-        for _ in tqdm(range(plays), desc="evaluation", unit="game", leave=False):
-            td, score = env.reset(), 0.0
-            for _ in range(max_steps):
-                td = env.step(actor(td))
-                score += float(td["next", "reward"].sum())
-                if td["next", "done"].any():
-                    break
-                td = step_mdp(td)
-            scores.append(score)
-    return scores
 
 
 def train_paac(
@@ -176,9 +124,9 @@ def train_paac(
         name, preset, life_loss, env_module, input, fdr, edr, frame_stack, obs_dtype
     )
     network, arguments = _network(env_kwargs, core)
-    env = _env(network, num_envs=num_envs, mode=backend, keep_inputs=False, **env_kwargs)
+    env = _env(num_envs=num_envs, mode=backend, keep_inputs=False, **env_kwargs)
     env.set_seed(seed)
-    actor = _actor(network, env)
+    actor = Actor(env, network)
     optim = make_optimizer(
         optimizer,
         network.parameters(),
@@ -204,13 +152,6 @@ def train_paac(
         save_checkpoint(checkpoint, parts, frames=frames_done, history=history)
 
     # ---- training ----------------------------------------------------------------------------
-    collector = Collector(  # the same tensordict each time: each rollout is used, then dropped
-        env,
-        actor,
-        frames_per_batch=batch,
-        total_frames=max(total_frames - frames_done, batch),
-        return_same_td=True,
-    )
     recent: deque[float] = deque(maxlen=20)
     losses: dict[str, float] = {}
     start, frames_at_start = time.perf_counter(), frames_done
@@ -218,19 +159,22 @@ def train_paac(
         total=total_frames, initial=frames_done, desc=f"PAAC {name}", unit="frame", unit_scale=True
     )
     try:
-        for update, data in enumerate(collector, start=1):
-            if frames_done >= total_frames:
-                break
-            data = n_step_targets(data, network, gamma)
-            loss, loss_parts = paac_loss(network, data, entropy_coeff, critic_coeff, loss_scale)
+        update = 0
+        while frames_done < total_frames:
+            update += 1
+            rollout = actor.rollout(rollout_steps)
+            returns = n_step_returns(rollout.rewards, rollout.dones, rollout.bootstrap, gamma)
+            loss, loss_parts = paac_loss(
+                rollout.logits, rollout.values, rollout.actions, returns,
+                entropy_coeff, critic_coeff, loss_scale,
+            )  # fmt: skip
             optim.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(network.parameters(), max_grad_norm)
             optim.step()
             schedule.step()
-            frames_done += data.numel()
-            ended = data["next", "done"].squeeze(-1)
-            recent.extend(data["next", "episode_reward"][ended].flatten().tolist())
+            frames_done += rollout.env_steps
+            recent.extend(rollout.scores)
             losses = {k: float(v) for k, v in loss_parts.items()}
             if not all(np.isfinite(v) for v in losses.values()):
                 raise FloatingPointError(f"non-finite loss at {frames_done} frames: {losses}")
@@ -248,13 +192,13 @@ def train_paac(
                 for key, value in row.items():
                     if key != "frames":
                         scalars.log_scalar(key, value, step=frames_done)
-            bar.update(data.numel())
+            bar.update(rollout.env_steps)
             bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
             if update % checkpoint_every == 0:
                 save()
     finally:
         bar.close()
-        collector.shutdown()
+        env.close()
     save()
 
     # ---- evaluation --------------------------------------------------------------------------
@@ -305,10 +249,14 @@ def _evaluate(
     network: PAACNetwork, env_kwargs: dict[str, Any], seed: int, plays: int, max_steps: int
 ) -> list[float]:
     """Raw scores of ``plays`` whole games on one evaluation env (no life loss, no clipping)."""
-    env = _env(network, num_envs=1, mode="single", train=False, **env_kwargs)
+    env = _env(num_envs=1, mode="single", train=False, **env_kwargs)
     env.set_seed(seed + 1)
+    actor = Actor(env, network)
     try:
-        return play(network, env, plays, max_steps)
+        return [
+            actor.play(max_steps)
+            for _ in tqdm(range(plays), desc="evaluation", unit="game", leave=False)
+        ]
     finally:
         env.close()
 

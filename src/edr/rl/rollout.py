@@ -1,0 +1,111 @@
+"""PAAC's actor: every env plays on from where it stopped, the network's outputs kept in the graph.
+
+The loss then needs no second pass over the rollout: the logits and values the actions were
+sampled from are the ones it differentiates (the parameters do not change between collecting a
+rollout and the update that uses it, so the gradient is the same as a replay's). The recurrent
+state runs on across rollouts, cut from the graph at each rollout's start (truncated
+backpropagation through time, as PAAC did) and restarted from zeros where an episode starts
+(``is_init``, from torchrl's ``InitTracker``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.envs import EnvBase
+
+from edr.rl.paac import PAACNetwork
+
+
+@dataclass
+class Rollout:
+    """``steps`` agent steps of N envs; T = steps."""
+
+    logits: torch.Tensor  # (N, T, A), in the graph
+    values: torch.Tensor  # (N, T, 1), in the graph
+    actions: torch.Tensor  # (N, T) int64, the actions taken
+    rewards: torch.Tensor  # (N, T, 1) as the env gives them (clipped in training)
+    dones: torch.Tensor  # (N, T, 1) bool: the step ended its episode
+    bootstrap: torch.Tensor  # (N, 1) the value of the state after the last step, no graph
+    scores: list[float]  # raw scores of the episodes that ended in the rollout
+
+    @property
+    def env_steps(self) -> int:
+        return self.actions.numel()
+
+
+class Actor:
+    """Plays ``network``'s policy (sampled) in ``env``, a batched env with ``InitTracker``.
+
+    ``env`` writes ``observation`` (..., C, 84, 84), ``is_init``, ``reward``, ``done`` and
+    ``episode_reward`` (the raw score so far); its action is one-hot.
+    """
+
+    def __init__(self, env: EnvBase, network: PAACNetwork) -> None:
+        self.env, self.network = env, network
+        self.num_actions = env.action_spec.shape[-1]
+        self._td: TensorDictBase | None = None  # the envs' current step; None: reset first
+        self._h = self._c = torch.zeros(0)  # (N, state_size) the recurrent state
+
+    def _state(self) -> TensorDictBase:
+        if self._td is None:
+            self._td = self.env.reset()
+            n = self._td.batch_size.numel()
+            self._h = self._c = torch.zeros(n, self.network.state_size)
+        return self._td
+
+    def _act(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """Sample the action of every env at step ``td``; -> logits (N, A) and value (N, 1)."""
+        logits, value, self._h, self._c = self.network(
+            td["observation"], self._h, self._c, td["is_init"]
+        )
+        probs = logits.detach().reshape(-1, self.num_actions).softmax(-1)
+        action = torch.multinomial(probs, 1).squeeze(-1)  # (N,)
+        one_hot = torch.nn.functional.one_hot(action, self.num_actions)
+        td["action"] = one_hot.reshape(*td.batch_size, self.num_actions)
+        return logits, value
+
+    def rollout(self, steps: int) -> Rollout:
+        """``steps`` steps of every env, in the graph; the envs that end restart on their own."""
+        td = self._state()
+        self._h, self._c = self._h.detach(), self._c.detach()  # truncated backpropagation
+        logits, values, actions, rewards, dones, scores = [], [], [], [], [], []
+        for _ in range(steps):
+            step_logits, value = self._act(td)
+            actions.append(td["action"].argmax(-1))
+            out, td = self.env.step_and_maybe_reset(td)
+            done = out["next", "done"].reshape(-1, 1)
+            logits.append(step_logits.reshape(done.shape[0], -1))
+            values.append(value.reshape(-1, 1))
+            rewards.append(out["next", "reward"].reshape(-1, 1))
+            dones.append(done)
+            if done.any():
+                scores += out["next", "episode_reward"].reshape(-1, 1)[done].tolist()
+        with torch.no_grad():
+            _, bootstrap, _, _ = self.network(td["observation"], self._h, self._c, td["is_init"])
+        self._td = td
+        return Rollout(
+            logits=torch.stack(logits, 1),
+            values=torch.stack(values, 1),
+            actions=torch.stack(actions, 1).reshape(done.shape[0], steps),
+            rewards=torch.stack(rewards, 1),
+            dones=torch.stack(dones, 1),
+            bootstrap=bootstrap.reshape(-1, 1),
+            scores=scores,
+        )
+
+    @torch.no_grad()
+    def play(self, max_steps: int) -> float:
+        """One whole game from a reset, on a single env; its raw score."""
+        self._td = None
+        td, score = self._state(), 0.0
+        for _ in range(max_steps):
+            self._act(td)
+            out, td = self.env.step_and_maybe_reset(td)
+            score += float(out["next", "reward"].sum())
+            if out["next", "done"].any():
+                break
+        self._td = None
+        return score
