@@ -107,6 +107,8 @@ def test_frame_stack_holds_the_last_frames_and_restarts_per_env() -> None:
         torch.testing.assert_close(stacks[:, t], expected)
     mask = torch.tensor([[False], [True], [False]])
     out = env.reset(rollout[:, -1]["next"].clone().set("_reset", mask))
+    # channels-last in memory, as the network's trunk convolves it: it takes the stack uncopied
+    assert out["observation"].is_contiguous(memory_format=torch.channels_last)
     torch.testing.assert_close(out["observation"][[0, 2]], stacks[[0, 2], -1])
     first = torch.cat([out["fdr"][1], out["edr"][1]])  # (3, H, W): env 1's new first frame
     torch.testing.assert_close(out["observation"][1], first.repeat(3, 1, 1))

@@ -238,7 +238,7 @@ def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> 
 
 def atari_throughput(
     game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int,
-    obs_dtype: str = "float16", backend: str = "parallel",
+    obs_dtype: str = "float32", backend: str = "parallel",
 ) -> AtariThroughput:  # fmt: skip
     """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
 
@@ -337,8 +337,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--obs-dtype",
         choices=["float32", "float16"],
-        default="float16",
-        help="the observation stack's dtype, float16 as task=atari trains (--atari)",
+        default="float32",
+        help="the observation stack's dtype, float32 as task=atari trains (--atari)",
     )
     parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
     args = parser.parse_args(argv)

@@ -142,7 +142,9 @@ class FrameStack(_PerEnvStream):
     stacked over the last ``n`` steps, oldest first -> ``out_key`` (..., n * sum(C_i), H, W).
 
     An env that (re)starts repeats its first frame ``n`` times (as ``CatFrames(padding="same")``).
-    ``dtype=torch.float16`` halves the bytes each step writes (and a rollout stores).
+    The stack is channels-last in memory, as the PAAC trunk convolves it (no copy there), and
+    its newest frame is written straight from RGB pixels (H, W, 3).
+    ``dtype=torch.float16`` halves the bytes each step writes (the network converts it back).
     Each step writes one new stack in one pass, where torchrl's ``CatTensors`` then ``CatFrames``
     take five (cat; roll, copy, write, clone) and three allocations. The inputs stay as they are.
     """
@@ -167,10 +169,11 @@ class FrameStack(_PerEnvStream):
 
     def _restart(self, x: list[torch.Tensor], rows: torch.Tensor | None) -> torch.Tensor:
         frame = torch.cat(x if rows is None else [p[rows] for p in x], dim=1)
-        return frame.repeat(1, self.n, 1, 1).to(self.dtype or frame.dtype)
+        stack = frame.repeat(1, self.n, 1, 1)
+        return stack.to(self.dtype or frame.dtype, memory_format=torch.channels_last)
 
     def _advance(self, x: list[torch.Tensor]) -> torch.Tensor:
-        stack = torch.empty_like(self._last)  # a new tensor: the last one lives on in rollouts
+        stack = torch.empty_like(self._last)  # a new one, channels-last: the last may live on
         start = stack.shape[1] - sum(p.shape[1] for p in x)  # where the newest frame begins
         stack[:, :start] = self._last[:, stack.shape[1] - start :]
         for part in x:
