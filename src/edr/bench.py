@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 import statistics
 import subprocess
 import sys
@@ -222,10 +223,12 @@ BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl Pa
                  "serial": "torchrl SerialEnv"}  # fmt: skip
 
 
-def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> float:
+def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> tuple[float, float]:
     """Env steps/s of ``task=atari``'s training loop (FDR RGB + EDR gray, its defaults otherwise)
-    over ``frames`` env steps, from the first rollout on, as its progress bar shows them."""
-    from edr.tasks.atari import train_paac
+    over ``frames`` env steps: from the first rollout on, as its progress bar shows them, and
+    steady (from a quarter of the way on, after the first updates compiled the EDR kernels and
+    warmed the allocator: what a run of hours sees)."""
+    from edr.tasks.atari import HISTORY, train_paac
 
     with tempfile.TemporaryDirectory() as out_dir:
         metrics = train_paac(
@@ -233,7 +236,12 @@ def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> 
             edr=EDR(color="gray"), total_frames=frames, eval_plays=1, eval_max_steps=1,
             checkpoint_every=10**9, logger=None,
         )  # fmt: skip
-    return float(metrics["train/fps"])
+        history = json.loads((Path(out_dir) / HISTORY).read_text())
+    # each row's fps is cumulative from the first rollout: its elapsed time is frames / fps
+    elapsed = [row["frames"] / row["train/fps"] for row in history]
+    warm = next(i for i, row in enumerate(history) if row["frames"] >= frames / 4)
+    steady = (history[-1]["frames"] - history[warm]["frames"]) / (elapsed[-1] - elapsed[warm])
+    return float(metrics["train/fps"]), steady
 
 
 def atari_throughput(
@@ -354,16 +362,17 @@ def main(argv: list[str] | None = None) -> None:
                 args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack,
                 args.obs_dtype, backend,
             )  # fmt: skip
-            train_fps = (
+            train_fps, train_fps_steady = (
                 training_throughput(args.game, args.atari, backend, args.train_frames)
                 if args.train_frames
-                else None
+                else (None, None)
             )
             record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                       "game": args.game, "num_envs": args.atari, "backend": backend,
                       "frame_stack": args.frame_stack, "obs_dtype": args.obs_dtype,
                       "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
                       "train_frames": args.train_frames, "train_fps": train_fps,
+                      "train_fps_steady": train_fps_steady,
                       "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
             name = f"atari_{backend}_{machine['hostname']}_{stamp}.json"
             records.append((write_json_atomic(args.out_dir / name, record), record))
@@ -375,7 +384,11 @@ def main(argv: list[str] | None = None) -> None:
             print(
                 f"{backend:9s} EDR costs {result.cost:.1f} % of throughput (median of {repeats} "
                 f"paired rollouts; {min(result.costs):.1f} to {max(result.costs):.1f} %)"
-                + (f"; training loop {train_fps:.0f} env steps/s" if train_fps else "")
+                + (
+                    f"; training loop {train_fps:.0f} env steps/s ({train_fps_steady:.0f} steady)"
+                    if train_fps
+                    else ""
+                )
             )
         print(atari_cost_table(records))
         print(f"records: {', '.join(str(p) for p, _ in records)} (edr-tables renders "

@@ -142,7 +142,8 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
         "Main CPU: CPU milliseconds the main process",
         "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run).",
         "Training: env steps/s of `task=atari`'s whole loop (FDR+EDR, ftlstm core, its defaults)",
-        "on that backend, over the env steps given, as its progress bar reports them.",
+        "on that backend, over the env steps given, as its progress bar reports them (from the",
+        "first rollout on, kernel compilation included), then steady: from a quarter of the way on.",
         "",
         "| Game | Backend | Envs | Frames stacked | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Training (steps/s) | Machine | Measured, git | Record |",
         "|---|---|---:|---:|---|---:|---:|---:|---|---|---:|---|---|---|",
@@ -151,6 +152,8 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
         fdr, edr = r["rows"]
         costs, m = r["costs"], r["machine"]
         train = f"{r['train_fps']:,.0f} over {r['train_frames']:,}" if r.get("train_fps") else "—"
+        if r.get("train_fps_steady"):
+            train += f"; {r['train_fps_steady']:,.0f} steady"
         lines.append(
             f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r['frame_stack']} | "
             f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "
