@@ -91,17 +91,18 @@ def test_partial_reset_restarts_only_that_env(mode: str) -> None:
     env.close()
 
 
-def test_frame_stack_holds_the_last_frames_and_restarts_per_env() -> None:
+@pytest.mark.parametrize("fdr", ["gray", "rgb"])
+def test_frame_stack_holds_the_last_frames_and_restarts_per_env(fdr: str) -> None:
     edr = EDR(color="gray")
-    env = make_atari_env("Pong", num_envs=3, mode="serial", fdr="gray", edr=edr, frame_stack=3)
+    env = make_atari_env("Pong", num_envs=3, mode="serial", fdr=fdr, edr=edr, frame_stack=3)
     env.set_seed(2)
     rollout = env.rollout(5, break_when_any_done=False)  # (3 envs, 5 steps)
 
     def whole(key: str) -> torch.Tensor:  # (3, 6, ...): the reset's data, then every step's
         return torch.cat([rollout[key][:, :1], rollout["next", key]], dim=1)
 
-    per_step = torch.cat([whole("fdr"), whole("edr")], dim=2)  # (3, 6, 1 + 2, H, W)
-    stacks = whole("observation")  # (3, 6, 3 * 3, H, W)
+    per_step = torch.cat([whole("fdr"), whole("edr")], dim=2)  # (3, 6, C + 2, H, W)
+    stacks = whole("observation")  # (3, 6, 3 * (C + 2), H, W)
     for t in range(stacks.shape[1]):  # oldest first; the first frame repeats at the start
         expected = torch.cat([per_step[:, max(t - k, 0)] for k in (2, 1, 0)], dim=1)
         torch.testing.assert_close(stacks[:, t], expected)
@@ -110,7 +111,7 @@ def test_frame_stack_holds_the_last_frames_and_restarts_per_env() -> None:
     # channels-last in memory, as the network's trunk convolves it: it takes the stack uncopied
     assert out["observation"].is_contiguous(memory_format=torch.channels_last)
     torch.testing.assert_close(out["observation"][[0, 2]], stacks[[0, 2], -1])
-    first = torch.cat([out["fdr"][1], out["edr"][1]])  # (3, H, W): env 1's new first frame
+    first = torch.cat([out["fdr"][1], out["edr"][1]])  # (C + 2, H, W): env 1's new first frame
     torch.testing.assert_close(out["observation"][1], first.repeat(3, 1, 1))
     env.close()
     with pytest.raises(ValueError, match="n >= 1"):
