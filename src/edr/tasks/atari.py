@@ -91,7 +91,7 @@ def train_paac(
     adam_eps: PositiveFloat = 1e-5,
     gamma: Fraction = 0.99,
     loss_scale: PositiveFloat = 5.0,
-    entropy_coeff: NonNegativeFloat = 0.01,
+    entropy_coeff: NonNegativeFloat = 0.02,
     critic_coeff: NonNegativeFloat = 0.25,
     max_grad_norm: PositiveFloat = 3.0,
     eval_plays: PositiveInt = 30,
