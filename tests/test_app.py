@@ -68,9 +68,10 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     record_path = paths["envpool"]
     record = json.loads(record_path.read_text())
     assert record["backend"] == "envpool" and record["train_fps"] > 0
+    assert record["train_fps_steady"] > 0
     assert [row["name"] for row in record["rows"]] == [
-        "Pong: FDR RGB, 2 frames, float16",
-        "Pong: FDR RGB + EDR gray, 2 frames, float16",
+        "Pong: FDR RGB, 2 frames, float32",
+        "Pong: FDR RGB + EDR gray, 2 frames, float32",
     ]
     assert all(row["fps"] > 0 and row["frames"] == 6 for row in record["rows"])
     assert len(record["costs"]) == 2 and record["cost"] == statistics.median(record["costs"])
@@ -80,5 +81,6 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     tables.main(["--runs", str(tmp_path), "--out", str(tmp_path / "paper")])
     text = (tmp_path / "paper" / "atari_edr_cost.md").read_text()
     (row,) = [line for line in text.splitlines() if record_path.name in line]
-    assert row.startswith("| Pong | envpool | 2 | 2 | float16 |")
+    assert row.startswith("| Pong | envpool | 2 | 2 | float32 |")
     assert f"{record['cost']:.1f} %" in row and f"{record['train_fps']:,.0f} over 40" in row
+    assert f"{record['train_fps_steady']:,.0f} steady" in row

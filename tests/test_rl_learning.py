@@ -103,7 +103,7 @@ def random_score() -> float:
 @pytest.mark.slow
 @pytest.mark.parametrize("core", ["none", "lstm", "ftlstm"])
 def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -> None:
-    """Defaults of task=atari (Adam, PAAC's loss, FDR+EDR), 500 updates of 8 envs x 5 steps."""
+    """Defaults of task=atari (16 envs, Adam, PAAC's loss, FDR+EDR), 500 updates of 16 x 5 steps."""
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
     torch.manual_seed(0)
     metrics = train_paac(
@@ -113,10 +113,9 @@ def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -
         env_module="catch_game",
         preset="none",
         backend="serial",
-        num_envs=8,
         core=core,
         edr=EDR(color="gray"),
-        total_frames=20_000,
+        total_frames=40_000,
         lr_decay_frames=10**9,
         eval_plays=20,
         eval_max_steps=100,

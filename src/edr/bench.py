@@ -237,11 +237,16 @@ def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> 
             checkpoint_every=10**9, logger=None,
         )  # fmt: skip
         history = json.loads((Path(out_dir) / HISTORY).read_text())
+    fps = float(metrics["train/fps"])
+    if len(history) < 2:
+        return fps, fps
     # each row's fps is cumulative from the first rollout: its elapsed time is frames / fps
     elapsed = [row["frames"] / row["train/fps"] for row in history]
-    warm = next(i for i, row in enumerate(history) if row["frames"] >= frames / 4)
+    warm = min(
+        len(history) - 2, next(i for i, r in enumerate(history) if r["frames"] >= frames / 4)
+    )
     steady = (history[-1]["frames"] - history[warm]["frames"]) / (elapsed[-1] - elapsed[warm])
-    return float(metrics["train/fps"]), steady
+    return fps, steady
 
 
 def atari_throughput(
