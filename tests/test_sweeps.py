@@ -70,13 +70,15 @@ def test_a_killed_sweep_resumes_where_it_stopped(tmp_path) -> None:
 
 
 @pytest.mark.slow
-def test_ctrl_c_ends_with_one_line_saying_how_to_resume(tmp_path) -> None:
+@pytest.mark.parametrize(("sent", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_or_sigterm_ends_with_one_line_saying_how_to_resume(sent, status, tmp_path) -> None:
+    """Ctrl-C, or SIGTERM as ``kill`` and a cluster's preemption send it."""
     sweep = tmp_path / "sweep"
     process = _start(*SWEEP, f"hydra.sweep.dir={sweep}", cwd=tmp_path)
     _wait_for(sweep / FIRST / "checkpoint.pt", process)
-    process.send_signal(signal.SIGINT)
+    process.send_signal(sent)
     output = process.communicate(timeout=120)[0]
-    assert process.returncode == 130
+    assert process.returncode == status
     assert "Traceback" not in output
     assert output.rstrip().splitlines()[-1].startswith("interrupted: run the same command again")
     record = json.loads((sweep / FIRST / "run.json").read_text())

@@ -12,6 +12,7 @@ from __future__ import annotations
 import inspect
 import logging
 import random
+import signal
 import sys
 import time
 from pathlib import Path
@@ -143,17 +144,28 @@ def main(cfg: DictConfig) -> None:
         raise SystemExit(2) from None
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a scheduler's preemption or time limit), ended as Ctrl-C is: the run's
+    record says ``interrupted`` and the next attempt resumes from its checkpoint."""
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    raise Terminated(signal.Signals(signum).name)
+
+
 def cli() -> None:
-    """The ``edr-run`` command: Hydra's app, with Ctrl-C ending in one line instead of a trace."""
+    """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
+    of a trace (exit status 130 or 143, as the shell reports those signals)."""
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         main()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as error:
         print(
             "\ninterrupted: run the same command again to resume "
             "(finished runs are skipped, interrupted ones continue from their checkpoints)",
             file=sys.stderr,
         )
-        raise SystemExit(130) from None
+        raise SystemExit(143 if isinstance(error, Terminated) else 130) from None
 
 
 if __name__ == "__main__":
