@@ -142,8 +142,7 @@ class FrameStack(_PerEnvStream):
     stacked over the last ``n`` steps, oldest first -> ``out_key`` (..., n * sum(C_i), H, W).
 
     An env that (re)starts repeats its first frame ``n`` times (as ``CatFrames(padding="same")``).
-    The stack is channels-last in memory, as the PAAC trunk convolves it (no copy there), and
-    its newest frame is written straight from RGB pixels (H, W, 3).
+    The stack is channels-last in memory, as the PAAC trunk convolves it (no copy there).
     ``dtype=torch.float16`` halves the bytes each step writes (the network converts it back).
     Each step writes one new stack in one pass, where torchrl's ``CatTensors`` then ``CatFrames``
     take five (cat; roll, copy, write, clone) and three allocations. The inputs stay as they are.
