@@ -13,6 +13,7 @@ import edr.tasks.atari as atari
 from edr.rl.paac import PAACNetwork, n_step_returns
 from edr.run import run
 from edr.tasks.atari import evaluate_checkpoint, load_network
+from edr.validate import ConfigError
 
 
 @pytest.mark.parametrize("core", ["lstm", "ftlstm"])
@@ -62,16 +63,16 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
 
     def dies_after_update_60(*args, **kwargs):
         calls["n"] += 1
-        if calls["n"] > 60:  # the checkpoint of update 50 (1,000 frames) is on disk
+        if calls["n"] > 60:  # as Ctrl-C in update 61: 60 updates of 20 env steps are kept
             raise KeyboardInterrupt("killed")
         return real_returns(*args, **kwargs)
 
     monkeypatch.setattr(atari, "n_step_returns", dies_after_update_60)
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
-    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1000
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1200
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
-    assert evaluated["train/frames"] == 1000 and evaluated["eval/plays"] == 1
+    assert evaluated["train/frames"] == 1200 and evaluated["eval/plays"] == 1
     assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
     monkeypatch.setattr(atari, "n_step_returns", real_returns)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
@@ -97,3 +98,13 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert (tmp_path / "training_curve.png").is_file()
     network = load_network(tmp_path)
     assert sum(p.numel() for p in network.parameters()) > 0
+
+    # a finished run trains on from its last checkpoint to a raised budget, and not to a lower one
+    extended = run(compose_config(*overrides, f"out_dir={tmp_path}", "task.total_frames=2400"))
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["extended"] == ["task.total_frames: 2000 -> 2400"] and record["resumed"]
+    assert extended["train/frames"] == 2400 and record["metrics"] == extended
+    history = json.loads((tmp_path / "history.json").read_text())
+    assert [row["frames"] for row in history] == list(range(20, 2401, 20))
+    with pytest.raises(ConfigError, match=r"task\.total_frames: 2400 -> 2000"):
+        run(compose_config(*overrides, f"out_dir={tmp_path}"))

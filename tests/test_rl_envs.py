@@ -118,6 +118,40 @@ def test_frame_stack_holds_the_last_frames_and_restarts_per_env(fdr: str) -> Non
         FrameStack(0)
 
 
+def test_a_stack_ring_gives_the_same_stacks_and_autograd_refuses_an_overwritten_one() -> None:
+    stacks, copies = {}, {}
+    for ring in (None, 3):
+        env = make_atari_env("Pong", num_envs=2, mode="serial", edr=EDR(color="gray"),
+                             frame_stack=2, stack_ring=ring)  # fmt: skip
+        env.set_seed(4)
+        torch.manual_seed(4)  # the same random actions
+        td, emitted, copies[ring] = env.reset(), [], []
+        for _ in range(7):
+            td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+            emitted.append(td["observation"])
+            copies[ring].append(td["observation"].clone())  # before the ring comes round to it
+            assert emitted[-1].is_contiguous(memory_format=torch.channels_last)
+        stacks[ring] = emitted
+        env.close()
+    ringed = stacks[3]
+    assert ringed[0].data_ptr() == ringed[3].data_ptr() == ringed[6].data_ptr()  # reused
+    torch.testing.assert_close(copies[3], copies[None])  # each step's stack, as it was emitted
+    assert len({s.data_ptr() for s in stacks[None]}) == 7  # without a ring: a new one each step
+
+    env = make_atari_env("Pong", num_envs=2, mode="serial", edr=EDR(color="gray"), stack_ring=2)
+    td = env.reset()
+    td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+    weight = torch.ones(1, 5, 1, 1, requires_grad=True)
+    loss = torch.nn.functional.conv2d(td["observation"], weight).sum()  # saves the stack
+    for _ in range(2):  # the ring comes round to it
+        td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
+    env.close()
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        loss.backward()
+    with pytest.raises(ValueError, match="2 buffers or more"):
+        FrameStack(2, ring=1)
+
+
 def test_float16_observation_is_the_float32_one_rounded() -> None:
     observations = {}
     for dtype in ("float32", "float16"):

@@ -219,6 +219,7 @@ class AtariThroughput:
         return statistics.median(self.costs)
 
 
+TRAIN_STACK_RING = 6  # the observation buffers task=atari cycles through: 5-step rollouts + 1
 BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl ParallelEnv",
                  "serial": "torchrl SerialEnv"}  # fmt: skip
 
@@ -271,6 +272,7 @@ def atari_throughput(
             edr=edr,
             frame_stack=frame_stack,
             obs_dtype=obs_dtype,
+            stack_ring=TRAIN_STACK_RING,
         )
         for edr in configs.values()
     ]

@@ -82,7 +82,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     arguments: dict[str, Any] = {"out_dir": out_dir, "seed": cfg.seed}
     if "resume" in inspect.signature(target).parameters:
         arguments["resume"] = plan.action == "resume"
-    if plan.action == "resume":
+    if plan.extended:
+        log.info("%s: extending it from its checkpoint (%s)", out_dir, "; ".join(plan.extended))
+    elif plan.action == "resume":
         log.info("%s: resuming from its checkpoint", out_dir)
 
     # ---- the record, then the task -----------------------------------------------------------
@@ -97,6 +99,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         "scale": cfg.scale,
         "attempt": previous.get("attempt", 0) + 1 if plan.action == "resume" else 1,
         "resumed": plan.action == "resume",
+        **({"extended": list(plan.extended)} if plan.extended else {}),
         "started_at": now(),
         "choices": choices,
         "overrides": overrides,

@@ -3,6 +3,8 @@ folder again.
 
 - a ``finished`` record with the same fingerprint: nothing to do (skipped);
 - a checkpoint left by a run of the same fingerprint: continue from it (resumed);
+- a checkpoint left by a run whose config differs only in a budget raised (``EXTENDABLE``):
+  continue from it to the new budget (resumed, the record saying ``extended``);
 - a record of another config: refused, naming the keys that differ;
 - otherwise: run.
 
@@ -23,13 +25,16 @@ from typing import Any, Literal
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from edr.identity import config_diff
+from edr.identity import config_diff, flatten
 from edr.records import RECORD_NAME, now, read_record
 from edr.tasks.checkpoints import CHECKPOINT
 from edr.validate import ConfigError
 
 ATTEMPTS = "attempts.jsonl"
 Resume = Literal["auto", True, False]
+# Budgets a run may be raised to and continued: the training up to the old budget does not
+# depend on them (Atari's learning rate follows task.lr_decay_frames, not task.total_frames).
+EXTENDABLE = frozenset({"task.total_frames"})
 log = logging.getLogger(__name__)
 
 
@@ -39,6 +44,19 @@ class Plan:
 
     action: Literal["skip", "resume", "run"]
     record: dict[str, Any] | None  # the record found there, if any
+    extended: tuple[str, ...] = ()  # the budgets a resume raises, as ``key: old -> new``
+
+
+def _raised_budgets(old: dict[str, Any], new: dict[str, Any]) -> tuple[str, ...]:
+    """The differences of ``new`` from ``old`` when every one is an ``EXTENDABLE`` budget raised;
+    () when any other key differs or a budget is lowered."""
+    a, b = flatten(old), flatten(new)
+    changed = {key for key in a.keys() | b.keys() if a.get(key) != b.get(key)}
+    if not changed or not changed <= EXTENDABLE:
+        return ()
+    if not all(isinstance(a.get(k), int) and b.get(k, 0) > a[k] for k in changed):
+        return ()
+    return tuple(config_diff(old, new))
 
 
 def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resume: Resume) -> Plan:
@@ -52,6 +70,9 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
         return Plan("run", record)
     if record is not None and record.get("fingerprint") != fingerprint:
         old = record.get("semantic_config", {})
+        extended = _raised_budgets(old, semantic) if checkpoint is not None else ()
+        if extended:
+            return Plan("resume", record, extended)
         changed = config_diff(old, semantic) if old else ["(the record predates fingerprints)"]
         raise ConfigError(
             f"{out_dir} holds a run of another config ({'; '.join(changed)}): "

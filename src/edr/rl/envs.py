@@ -240,6 +240,7 @@ def make_atari_env(
     frame_stack: int = 1,
     obs_dtype: Literal["float32", "float16"] = "float32",
     keep_inputs: bool = True,
+    stack_ring: int | None = None,
 ) -> TransformedEnv:
     """A torchrl env of ``num_envs`` Atari games with the observation the config asks for.
 
@@ -247,6 +248,8 @@ def make_atari_env(
 
     ``keep_inputs=False`` drops the pixels and the unstacked FDR / EDR images once the
     observation is stacked: a training rollout then stores the observation alone.
+    ``stack_ring=k``: the observations cycle through ``k`` buffers (:class:`FrameStack`), each
+    overwritten ``k`` steps after it was emitted; None: a new tensor every step.
     """
     if fdr == "none" and edr is None:
         raise ValueError("the observation needs FDR, EDR or both")
@@ -280,7 +283,9 @@ def make_atari_env(
             transforms.append(GrayScale(in_keys=["fdr"]))
     if obs_dtype not in ("float32", "float16"):
         raise ValueError(f"obs_dtype must be float32 or float16, got {obs_dtype!r}")
-    stack = FrameStack(frame_stack, parts, "observation", dtype=getattr(torch, obs_dtype))
+    stack = FrameStack(
+        frame_stack, parts, "observation", dtype=getattr(torch, obs_dtype), ring=stack_ring
+    )
     transforms.append(stack)
     if not keep_inputs:
         transforms.append(ExcludeTransform("pixels", *parts))

@@ -146,6 +146,12 @@ class FrameStack(_PerEnvStream):
     ``dtype=torch.float16`` halves the bytes each step writes (the network converts it back).
     Each step writes one new stack in one pass, where torchrl's ``CatTensors`` then ``CatFrames``
     take five (cat; roll, copy, write, clone) and three allocations. The inputs stay as they are.
+
+    ``ring=k`` writes the stacks into ``k`` buffers in turn instead of a new tensor each step
+    (16 Pong envs, 20 channels: ~1 ms less per step, the page faults of a fresh 9 MB tensor),
+    so a stack is overwritten ``k`` steps after it was emitted: whoever holds stacks longer
+    must copy them. Autograd guards a network that saved one: its backward then fails
+    ("modified by an inplace operation") rather than use the wrong frames.
     """
 
     def __init__(
@@ -154,12 +160,30 @@ class FrameStack(_PerEnvStream):
         in_keys: Sequence[str] = ("observation",),
         out_key: str = "observation",
         dtype: torch.dtype | None = None,
+        ring: int | None = None,
     ) -> None:
         super().__init__(in_keys, [out_key])
         if n < 1:
             raise ValueError(f"FrameStack needs n >= 1, got {n}")
+        if ring is not None and ring < 2:
+            raise ValueError(f"FrameStack's ring needs 2 buffers or more (None: none), got {ring}")
         self.n = n
         self.dtype = dtype  # of the stack; None: the inputs' promoted dtype
+        self.ring = ring
+        self._ring_stacks: list[torch.Tensor] = []  # the ring's, each (N, n * C, H, W)
+        self._turn = 0  # the ring's buffer written last
+
+    def _spare(self) -> torch.Tensor:
+        """An unwritten stack like the last one: a new tensor, or the ring's next buffer."""
+        if self.ring is None:
+            return torch.empty_like(self._last)  # channels-last, as the last
+        if self._ring_stacks and self._ring_stacks[0].shape != self._last.shape:  # another batch
+            self._ring_stacks = []
+        self._turn = (self._turn + 1) % self.ring
+        if self._turn >= len(self._ring_stacks):
+            self._turn = len(self._ring_stacks)
+            self._ring_stacks.append(torch.empty_like(self._last))
+        return self._ring_stacks[self._turn]
 
     def _input(self, tensordict: TensorDictBase) -> list[torch.Tensor]:
         """-> one (N, C_i, H, W) tensor per in_key."""
@@ -172,7 +196,7 @@ class FrameStack(_PerEnvStream):
         return stack.to(self.dtype or frame.dtype, memory_format=torch.channels_last)
 
     def _advance(self, x: list[torch.Tensor]) -> torch.Tensor:
-        stack = torch.empty_like(self._last)  # a new one, channels-last: the last may live on
+        stack = self._spare()  # not the last's memory: it is read here and may live on
         start = stack.shape[1] - sum(p.shape[1] for p in x)  # where the newest frame begins
         stack[:, :start] = self._last[:, stack.shape[1] - start :]
         for part in x:

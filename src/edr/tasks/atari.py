@@ -14,6 +14,7 @@ each is 4 emulator frames.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections import deque
 from pathlib import Path
@@ -54,6 +55,7 @@ INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1 n
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # one row per update: env steps, losses, fps, mean training score
 SCORES = "eval_scores.json"  # the raw score of every evaluation game
+log = logging.getLogger(__name__)
 DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # lr=None: ours for Adam; PAAC's for RMSprop
 
 
@@ -124,7 +126,11 @@ def train_paac(
         name, preset, life_loss, env_module, input, fdr, edr, frame_stack, obs_dtype
     )
     network, arguments = _network(env_kwargs, core)
-    env = _env(num_envs=num_envs, mode=backend, keep_inputs=False, **env_kwargs)
+    # A rollout's graph holds its rollout_steps observations and the next is written beside them
+    env = _env(
+        num_envs=num_envs, mode=backend, keep_inputs=False, stack_ring=rollout_steps + 1,
+        **env_kwargs,
+    )  # fmt: skip
     env.set_seed(seed)
     actor = Actor(env, network)
     optim = make_optimizer(
@@ -158,6 +164,7 @@ def train_paac(
     bar = tqdm(
         total=total_frames, initial=frames_done, desc=f"PAAC {name}", unit="frame", unit_scale=True
     )
+    updating = False  # between the optimizer's step and the row that counts it
     try:
         update = 0
         while frames_done < total_frames:
@@ -171,6 +178,7 @@ def train_paac(
             optim.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(network.parameters(), max_grad_norm)
+            updating = True
             optim.step()
             schedule.step()
             frames_done += rollout.env_steps
@@ -188,6 +196,7 @@ def train_paac(
             if recent:
                 row["train/score"] = float(np.mean(recent))
             history.append(row)
+            updating = False
             if scalars is not None:
                 for key, value in row.items():
                     if key != "frames":
@@ -196,6 +205,11 @@ def train_paac(
             bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
             if update % checkpoint_every == 0:
                 save()
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through edr-run: keep what was trained
+        if not updating:
+            save()
+            log.info("interrupted: checkpoint saved at %d env steps", frames_done)
+        raise
     finally:
         bar.close()
         env.close()
