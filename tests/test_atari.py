@@ -61,18 +61,18 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     overrides = ("task=atari", "debug=tiny", "representation.color=gray")
     real_returns, calls = atari.n_step_returns, {"n": 0}
 
-    def dies_after_update_60(*args, **kwargs):
+    def dies_in_update_65(*args, **kwargs):
         calls["n"] += 1
-        if calls["n"] > 60:  # as Ctrl-C in update 61: 60 updates of 20 env steps are kept
+        if calls["n"] > 64:  # as Ctrl-C in update 65: 64 updates of 20 env steps are kept
             raise KeyboardInterrupt("killed")
         return real_returns(*args, **kwargs)
 
-    monkeypatch.setattr(atari, "n_step_returns", dies_after_update_60)
+    monkeypatch.setattr(atari, "n_step_returns", dies_in_update_65)
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
-    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1200
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1280
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
-    assert evaluated["train/frames"] == 1200 and evaluated["eval/plays"] == 1
+    assert evaluated["train/frames"] == 1280 and evaluated["eval/plays"] == 1
     assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
     monkeypatch.setattr(atari, "n_step_returns", real_returns)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
@@ -90,11 +90,13 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     )
     assert metrics["eval/min"] <= metrics["eval/mean"] <= metrics["eval/max"]
     history = json.loads((tmp_path / "history.json").read_text())
-    assert [row["frames"] for row in history] == list(range(20, 2001, 20))  # none twice
+    # a row per 10 updates, one for the 4 updates before the interrupt, one at the end; none twice
+    rows = [*range(200, 1201, 200), 1280, *range(1480, 1881, 200), 2000]
+    assert [row["frames"] for row in history] == rows
     steps = [
         line.split(",")[0] for line in (tmp_path / "logs/scalars/train/fps.csv").read_text().split()
     ]
-    assert steps == [str(f) for f in range(20, 2001, 20)]  # the log was rewound, not doubled
+    assert steps == [str(f) for f in rows]  # the log was rewound, not doubled
     assert (tmp_path / "training_curve.png").is_file()
     network = load_network(tmp_path)
     assert sum(p.numel() for p in network.parameters()) > 0
@@ -105,6 +107,6 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert record["extended"] == ["task.total_frames: 2000 -> 2400"] and record["resumed"]
     assert extended["train/frames"] == 2400 and record["metrics"] == extended
     history = json.loads((tmp_path / "history.json").read_text())
-    assert [row["frames"] for row in history] == list(range(20, 2401, 20))
+    assert [row["frames"] for row in history] == [*rows, 2200, 2400]
     with pytest.raises(ConfigError, match=r"task\.total_frames: 2400 -> 2000"):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))

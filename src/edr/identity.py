@@ -23,6 +23,7 @@ NON_SEMANTIC = frozenset(
         "threads",  # CPU threads
         "resume",  # whether a run continues its checkpoint
         "logger",  # where scalars are logged
+        "log_every",  # how often scalars are logged
         "checkpoint_every",  # how often a checkpoint is written
         "num_workers",  # DataLoader worker processes
         "device",  # cpu or cuda: the machine is recorded separately

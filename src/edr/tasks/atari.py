@@ -53,7 +53,7 @@ from edr.validate import (
 
 INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1 names them
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
-HISTORY = "history.json"  # one row per update: env steps, losses, fps, mean training score
+HISTORY = "history.json"  # a row per log_every updates: env steps, losses, fps, training score
 SCORES = "eval_scores.json"  # the raw score of every evaluation game
 log = logging.getLogger(__name__)
 DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # lr=None: ours for Adam; PAAC's for RMSprop
@@ -99,6 +99,7 @@ def train_paac(
     eval_plays: PositiveInt = 30,
     eval_max_steps: PositiveInt = 27_000,
     checkpoint_every: PositiveInt = 500,
+    log_every: PositiveInt = 10,
     resume: bool = False,
     logger: LoggerName = "csv",
 ) -> dict[str, Any]:
@@ -164,7 +165,21 @@ def train_paac(
     bar = tqdm(
         total=total_frames, initial=frames_done, desc=f"PAAC {name}", unit="frame", unit_scale=True
     )
-    updating = False  # between the optimizer's step and the row that counts it
+    updating = False  # between the optimizer's step and the count of env steps that it trained
+    window: list[dict[str, float]] = []  # the updates since the last history row
+
+    def log_row() -> None:
+        """The updates of ``window`` as one row of the history, the logs and the progress bar."""
+        fps = (frames_done - frames_at_start) / (time.perf_counter() - start)
+        row = _history_row(frames_done, fps, window, recent)
+        window.clear()
+        history.append(row)
+        if scalars is not None:
+            for key, value in row.items():
+                if key != "frames":
+                    scalars.log_scalar(key, value, step=frames_done)
+        bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
+
     try:
         update = 0
         while frames_done < total_frames:
@@ -182,31 +197,21 @@ def train_paac(
             optim.step()
             schedule.step()
             frames_done += rollout.env_steps
+            updating = False
             recent.extend(rollout.scores)
             losses = {k: float(v) for k, v in loss_parts.items()}
             if not all(np.isfinite(v) for v in losses.values()):
                 raise FloatingPointError(f"non-finite loss at {frames_done} frames: {losses}")
-            fps = (frames_done - frames_at_start) / (time.perf_counter() - start)
-            row = {
-                "frames": frames_done,
-                "train/fps": fps,
-                "train/grad_norm": float(grad_norm),
-                **{f"train/{k}": v for k, v in losses.items()},
-            }
-            if recent:
-                row["train/score"] = float(np.mean(recent))
-            history.append(row)
-            updating = False
-            if scalars is not None:
-                for key, value in row.items():
-                    if key != "frames":
-                        scalars.log_scalar(key, value, step=frames_done)
+            window.append({"train/grad_norm": float(grad_norm), **_prefixed(losses)})
             bar.update(rollout.env_steps)
-            bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
+            if update % log_every == 0 or frames_done >= total_frames:
+                log_row()
             if update % checkpoint_every == 0:
                 save()
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through edr-run: keep what was trained
         if not updating:
+            if window:
+                log_row()
             save()
             log.info("interrupted: checkpoint saved at %d env steps", frames_done)
         raise
@@ -228,9 +233,25 @@ def train_paac(
         "train/fps": history[-1]["train/fps"] if history else float("nan"),
         "train/score_first": scored[0]["train/score"] if scored else None,
         "train/score_last": scored[-1]["train/score"] if scored else None,
-        **{f"train/{k}": v for k, v in losses.items()},
+        **_prefixed(losses),
         **_score_metrics(scores),
     }
+
+
+def _prefixed(losses: dict[str, float]) -> dict[str, float]:
+    return {f"train/{k}": v for k, v in losses.items()}
+
+
+def _history_row(
+    frames: int, fps: float, window: list[dict[str, float]], recent: deque[float]
+) -> dict[str, float]:
+    """One row of the training history: the means over the updates of ``window`` (gradient norm,
+    losses, entropy), the env steps per second so far, and the mean score of ``recent``."""
+    row = {"frames": frames, "train/fps": fps}
+    row.update({key: float(np.mean([w[key] for w in window])) for key in window[0]})
+    if recent:
+        row["train/score"] = float(np.mean(recent))
+    return row
 
 
 def _env_kwargs(
