@@ -76,7 +76,7 @@ def train_paac(
     preset: Preset = "paac",
     backend: Backend = "envpool",
     life_loss: bool = False,
-    num_envs: PositiveInt = 16,
+    num_envs: PositiveInt = 32,
     input: Literal["fdr", "fdr_edr", "edr"] = "fdr_edr",
     fdr: Literal["rgb", "gray"] = "rgb",
     edr: EDR | None = None,
