@@ -81,6 +81,25 @@ def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes(mon
     env.close()
 
 
+def test_play_scores_one_whole_game_per_env_at_once(monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
+    env = make_atari_env(
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=3, mode="serial",
+        edr=EDR(color="gray"), keep_inputs=False,
+    )  # fmt: skip
+    env.append_transform(InitTracker())
+    env.set_seed(0)
+    torch.manual_seed(0)
+    actor, ended = Actor(env, PAACNetwork(5, 3, "lstm")), []
+    # a drop falls for 4 steps and scores +1 or -1; a game is 4 drops (16 steps)
+    assert all(score in (-1.0, 1.0) for score in actor.play(4, on_end=ended.append))
+    assert ended == []  # no game ended in 4 steps: each counts the one drop it scored
+    scores = actor.play(100, on_end=ended.append)
+    assert len(scores) == 3 and all(score in (-4.0, -2.0, 0.0, 2.0, 4.0) for score in scores)
+    assert sum(ended) == 3  # every game ended once; what the envs play after is not counted
+    env.close()
+
+
 def _random_catch_score(episodes: int = 400) -> float:
     import catch_game  # noqa: F401 - registers EdrCatch-v0
 

@@ -10,6 +10,7 @@ backpropagation through time, as PAAC did) and restarted from zeros where an epi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -97,15 +98,24 @@ class Actor:
         )
 
     @torch.no_grad()
-    def play(self, max_steps: int) -> float:
-        """One whole game from a reset, on a single env; its raw score."""
+    def play(self, max_steps: int, on_end: Callable[[int], object] | None = None) -> list[float]:
+        """One whole game on every env at once, from a reset; their raw scores. A game still on
+        after ``max_steps`` agent steps counts what it scored so far; an env whose game ended
+        plays on (the batch steps together) and its later rewards are not counted.
+        ``on_end(k)`` hears of the k games that ended at each step (a progress bar's update)."""
         self._td = None
-        td, score = self._state(), 0.0
+        td = self._state()
+        n = td.batch_size.numel()
+        scores, playing = torch.zeros(n), torch.ones(n, dtype=torch.bool)
         for _ in range(max_steps):
             self._act(td)
             out, td = self.env.step_and_maybe_reset(td)
-            score += float(out["next", "reward"].sum())
-            if out["next", "done"].any():
+            scores += out["next", "reward"].reshape(n) * playing
+            ended = playing & out["next", "done"].reshape(n)
+            playing &= ~ended
+            if on_end is not None and ended.any():
+                on_end(int(ended.sum()))
+            if not playing.any():
                 break
         self._td = None
-        return score
+        return scores.tolist()

@@ -221,7 +221,7 @@ def train_paac(
     save()
 
     # ---- evaluation --------------------------------------------------------------------------
-    scores = _evaluate(network, env_kwargs, seed, eval_plays, eval_max_steps)
+    scores = _evaluate(network, env_kwargs, backend, seed, eval_plays, eval_max_steps)
     save_atomic({"state_dict": network.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     _write_results(out_dir, history, scores, f"{name}, {INPUT_NAMES[input]}")
     scored = [row for row in history if "train/score" in row]
@@ -281,17 +281,17 @@ def _network(env_kwargs: dict[str, Any], core: Core) -> tuple[PAACNetwork, dict[
 
 
 def _evaluate(
-    network: PAACNetwork, env_kwargs: dict[str, Any], seed: int, plays: int, max_steps: int
-) -> list[float]:
-    """Raw scores of ``plays`` whole games on one evaluation env (no life loss, no clipping)."""
-    env = _env(num_envs=1, mode="single", train=False, **env_kwargs)
+    network: PAACNetwork, env_kwargs: dict[str, Any], backend: Backend, seed: int, plays: int,
+    max_steps: int,
+) -> list[float]:  # fmt: skip
+    """Raw scores of ``plays`` whole games (no life loss, no clipping), played at once on as many
+    envs: EnvPool's when training used it, else serial (the network steps them as one batch)."""
+    mode = "envpool" if backend == "envpool" else "serial"
+    env = _env(num_envs=plays, mode=mode, train=False, **env_kwargs)
     env.set_seed(seed + 1)
-    actor = Actor(env, network)
     try:
-        return [
-            actor.play(max_steps)
-            for _ in tqdm(range(plays), desc="evaluation", unit="game", leave=False)
-        ]
+        with tqdm(total=plays, desc="evaluation", unit="game", leave=False) as bar:
+            return Actor(env, network).play(max_steps, on_end=bar.update)
     finally:
         env.close()
 
@@ -331,8 +331,9 @@ def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[s
     state = torch.load(run_dir / CHECKPOINT, weights_only=True)
     network.load_state_dict(state["network"])
     scores = _evaluate(
-        network, env_kwargs, record["seed"], plays or task["eval_plays"], task["eval_max_steps"]
-    )
+        network, env_kwargs, task["backend"], record["seed"], plays or task["eval_plays"],
+        task["eval_max_steps"],
+    )  # fmt: skip
     _write_results(run_dir, state["history"], scores, f"{name}, {INPUT_NAMES[task['input']]}")
     metrics = {"train/frames": state["frames"], **_score_metrics(scores)}
     write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
