@@ -55,8 +55,8 @@ INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1 n
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # a row per log_every updates: env steps, losses, fps, training score
 SCORES = "eval_scores.json"  # the raw score of every evaluation game
-log = logging.getLogger(__name__)
 DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # lr=None: ours for Adam; PAAC's for RMSprop
+log = logging.getLogger(__name__)
 
 
 def _env(**kwargs: Any) -> TransformedEnv:
