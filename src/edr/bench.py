@@ -219,7 +219,7 @@ class AtariThroughput:
         return statistics.median(self.costs)
 
 
-TRAIN_STACK_RING = 6  # the observation buffers task=atari cycles through: 5-step rollouts + 1
+TRAIN_ROLLOUT_STEPS = 5  # task=atari's rollout length, which sizes its ring of observations
 BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl ParallelEnv",
                  "serial": "torchrl SerialEnv"}  # fmt: skip
 
@@ -262,6 +262,7 @@ def atari_throughput(
     drifts hit both alike; each plays on from where its last rollout stopped, as in training.
     """
     from edr.rl.envs import make_atari_env  # ale-py and torchrl load only for this mode
+    from edr.rl.rollout import observations_held
 
     configs = {"FDR RGB": None, "FDR RGB + EDR gray": EDR(color="gray")}
     envs = [
@@ -272,7 +273,7 @@ def atari_throughput(
             edr=edr,
             frame_stack=frame_stack,
             obs_dtype=obs_dtype,
-            stack_ring=TRAIN_STACK_RING,
+            stack_ring=observations_held(TRAIN_ROLLOUT_STEPS),
         )
         for edr in configs.values()
     ]

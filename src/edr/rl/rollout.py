@@ -20,6 +20,13 @@ from torchrl.envs import EnvBase
 from edr.rl.paac import PAACNetwork
 
 
+def observations_held(rollout_steps: int) -> int:
+    """How many observations an :class:`Actor` holds at once: a rollout's graph keeps its
+    ``rollout_steps`` observations while the env writes the next one (the size of a
+    ``FrameStack`` ring that never overwrites one still in use)."""
+    return rollout_steps + 1
+
+
 @dataclass
 class Rollout:
     """``steps`` agent steps of N envs; T = steps."""

@@ -32,7 +32,7 @@ from edr.representations import EDR
 from edr.rl.envs import Backend, Preset, make_atari_env, rom_fingerprint
 from edr.rl.optim import OptimizerName, make_optimizer
 from edr.rl.paac import Core, PAACNetwork, n_step_returns, paac_loss
-from edr.rl.rollout import Actor
+from edr.rl.rollout import Actor, observations_held
 from edr.tasks.checkpoints import (
     CHECKPOINT,
     load_checkpoint,
@@ -127,10 +127,9 @@ def train_paac(
         name, preset, life_loss, env_module, input, fdr, edr, frame_stack, obs_dtype
     )
     network, arguments = _network(env_kwargs, core)
-    # A rollout's graph holds its rollout_steps observations and the next is written beside them
     env = _env(
-        num_envs=num_envs, mode=backend, keep_inputs=False, stack_ring=rollout_steps + 1,
-        **env_kwargs,
+        num_envs=num_envs, mode=backend, keep_inputs=False,
+        stack_ring=observations_held(rollout_steps), **env_kwargs,
     )  # fmt: skip
     env.set_seed(seed)
     actor = Actor(env, network)
