@@ -156,3 +156,57 @@ def test_an_input_that_needs_edr_refuses_another_representation(tmp_path) -> Non
         train_paac(out_dir=tmp_path, seed=0, input="fdr_edr", edr=FDR(), backend="serial")
     with pytest.raises(ConfigError, match=r"task\.env_id"):
         train_paac(out_dir=tmp_path, seed=0, env_id="EdrCatch-v0", edr=EDR(color="gray"))
+
+
+def test_frames_conv_equals_the_convolution_of_the_stack() -> None:
+    torch.manual_seed(0)
+    network = PAACNetwork(20, 6, "ftlstm")
+    frames = [torch.rand(3, 5, 84, 84) for _ in range(4)]  # oldest first
+    h = c = torch.rand(3, network.state_size)
+    init = torch.tensor([[False], [True], [False]])
+    stacked = network(torch.cat(frames, 1), h, c, init)
+    split = network(frames, h, c, init)
+    for a, b in zip(stacked, split, strict=True):
+        torch.testing.assert_close(a, b)
+    weight = network.trunk[0].weight
+    grads = [torch.autograd.grad(out[0].sum() + out[1].sum(), weight)[0] for out in (stacked, split)]
+    torch.testing.assert_close(*grads)
+    assert grads[0][:, :5].abs().sum() > 0  # the oldest frame's slice learns too
+    with pytest.raises(ValueError, match="do not split into 3 frames"):
+        network(frames[:3], h, c, init)
+
+
+def test_actor_stacks_frames_as_the_env_would_across_restarts(monkeypatch) -> None:
+    """The network's input from an env of single frames, stacked by the Actor, equals the
+    stack an env that stacks 3 frames itself gives for the same actions (games end every 16
+    steps, so restarts repeat their first frame in both)."""
+    monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
+
+    def env(frame_stack: int):
+        made = make_atari_env(
+            "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, mode="serial",
+            edr=EDR(color="gray"), frame_stack=frame_stack, keep_inputs=False, stack_ring=44,
+        )  # fmt: skip
+        made.append_transform(InitTracker())
+        made.set_seed(0)
+        return made
+
+    seen: list[torch.Tensor] = []
+
+    class Spy(PAACNetwork):
+        def forward(self, obs, h, c, is_init):
+            seen.append(torch.cat(list(obs), -3).clone())  # (2, 3 * 5, 84, 84)
+            return super().forward(obs, h, c, is_init)
+
+    single, stacking = env(1), env(3)
+    torch.manual_seed(0)
+    rollout = Actor(single, Spy(15, 3, "none"), frame_stack=3).rollout(40)
+    assert rollout.dones.any()
+    td = stacking.reset()
+    for t in range(40):
+        torch.testing.assert_close(seen[t], td["observation"], rtol=0, atol=0)
+        action = torch.nn.functional.one_hot(rollout.actions[:, t], 3)
+        _, td = stacking.step_and_maybe_reset(td.set("action", action))
+    torch.testing.assert_close(seen[40], td["observation"], rtol=0, atol=0)  # the bootstrap's
+    single.close()
+    stacking.close()

@@ -219,23 +219,26 @@ class AtariThroughput:
         return statistics.median(self.costs)
 
 
-TRAIN_ROLLOUT_STEPS = 5  # task=atari's rollout length, which sizes its ring of observations
+TRAIN_ROLLOUT_STEPS = 5  # task=atari's rollout length and frames per network input: they
+TRAIN_FRAME_STACK = 4  # size its ring of observations (its env stacks none, its network takes 4)
 BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl ParallelEnv",
                  "serial": "torchrl SerialEnv"}  # fmt: skip
 
 
-def training_throughput(game: str, num_envs: int, backend: str, frames: int) -> tuple[float, float]:
-    """Env steps/s of ``task=atari``'s training loop (FDR RGB + EDR gray, its defaults otherwise)
-    over ``frames`` env steps: from the first rollout on, as its progress bar shows them, and
-    steady (from a quarter of the way on, after the first updates compiled the EDR kernels and
-    warmed the allocator: what a run of hours sees)."""
+def training_throughput(
+    game: str, num_envs: int, backend: str, frames: int, input: str = "fdr_edr"
+) -> tuple[float, float]:
+    """Env steps/s of ``task=atari``'s training loop (``input``: FDR RGB + EDR gray or FDR RGB,
+    its defaults otherwise) over ``frames`` env steps: from the first rollout on, as its progress
+    bar shows them, and steady (from a quarter of the way on, after the first updates compiled
+    the EDR kernels and warmed the allocator: what a run of hours sees)."""
     from edr.tasks.atari import HISTORY, train_paac
 
     with tempfile.TemporaryDirectory() as out_dir:
         metrics = train_paac(
             out_dir=Path(out_dir), seed=0, game=game, backend=backend, num_envs=num_envs,
-            edr=EDR(color="gray"), total_frames=frames, eval_plays=1, eval_max_steps=1,
-            checkpoint_every=10**9, logger=None,
+            input=input, edr=EDR(color="gray") if input != "fdr" else None, total_frames=frames,
+            eval_plays=1, eval_max_steps=1, checkpoint_every=10**9, logger=None,
         )  # fmt: skip
         history = json.loads((Path(out_dir) / HISTORY).read_text())
     fps = float(metrics["train/fps"])
@@ -256,7 +259,9 @@ def atari_throughput(
 ) -> AtariThroughput:  # fmt: skip
     """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
 
-    Both use the paper's preset and RGB frames stacked ``frame_stack`` times; the EDR run adds
+    Both use the paper's preset and RGB frames stacked ``frame_stack`` times by the env (1:
+    none, as ``task=atari`` builds its envs; its network takes the frames as they come); the
+    EDR run adds
     EDR on gray (Appendix C's 5 channels per frame). Random actions; ``fps`` counts env steps of
     all envs. The two envs live side by side and take turns (in alternating order), so that load
     drifts hit both alike; each plays on from where its last rollout stopped, as in training.
@@ -273,7 +278,7 @@ def atari_throughput(
             edr=edr,
             frame_stack=frame_stack,
             obs_dtype=obs_dtype,
-            stack_ring=observations_held(TRAIN_ROLLOUT_STEPS),
+            stack_ring=observations_held(TRAIN_ROLLOUT_STEPS, TRAIN_FRAME_STACK),
         )
         for edr in configs.values()
     ]
@@ -348,7 +353,11 @@ def main(argv: list[str] | None = None) -> None:
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"
     )
     parser.add_argument(
-        "--frame-stack", type=int, default=4, help="agent steps per observation (--atari)"
+        "--frame-stack",
+        type=int,
+        default=1,
+        help="frames the env stacks per observation (--atari; task=atari's: 1, as its network "
+        "takes the last 4 frames as they come)",
     )
     parser.add_argument(
         "--obs-dtype",
@@ -370,17 +379,19 @@ def main(argv: list[str] | None = None) -> None:
                 args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack,
                 args.obs_dtype, backend,
             )  # fmt: skip
-            train_fps, train_fps_steady = (
-                training_throughput(args.game, args.atari, backend, args.train_frames)
-                if args.train_frames
-                else (None, None)
-            )
+            training = {}  # train_fps(_steady): FDR + EDR, as before; train_fps_fdr(_steady): FDR
+            for input, key in (("fdr", "train_fps_fdr"), ("fdr_edr", "train_fps")):
+                fps = (None, None)
+                if args.train_frames:
+                    fps = training_throughput(
+                        args.game, args.atari, backend, args.train_frames, input
+                    )
+                training[key], training[f"{key}_steady"] = fps
             record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                       "game": args.game, "num_envs": args.atari, "backend": backend,
                       "frame_stack": args.frame_stack, "obs_dtype": args.obs_dtype,
                       "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
-                      "train_frames": args.train_frames, "train_fps": train_fps,
-                      "train_fps_steady": train_fps_steady,
+                      "train_frames": args.train_frames, **training,
                       "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
             name = f"atari_{backend}_{machine['hostname']}_{stamp}.json"
             records.append((write_json_atomic(args.out_dir / name, record), record))
@@ -392,12 +403,13 @@ def main(argv: list[str] | None = None) -> None:
             print(
                 f"{backend:9s} EDR costs {result.cost:.1f} % of throughput (median of {repeats} "
                 f"paired rollouts; {min(result.costs):.1f} to {max(result.costs):.1f} %)"
-                + (
-                    f"; training loop {train_fps:.0f} env steps/s ({train_fps_steady:.0f} steady)"
-                    if train_fps
-                    else ""
-                )
             )
+            if args.train_frames:
+                print(
+                    f"{backend:9s} training loop, env steps/s (steady): FDR "
+                    f"{training['train_fps_fdr']:.0f} ({training['train_fps_fdr_steady']:.0f}), "
+                    f"FDR + EDR {training['train_fps']:.0f} ({training['train_fps_steady']:.0f})"
+                )
         print(atari_cost_table(records))
         print(f"records: {', '.join(str(p) for p, _ in records)} (edr-tables renders "
               "paper/atari_edr_cost.md from them)")  # fmt: skip

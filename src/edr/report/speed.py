@@ -151,9 +151,15 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
     for path, r in paired:
         fdr, edr = r["rows"]
         costs, m = r["costs"], r["machine"]
-        train = f"{r['train_fps']:,.0f} over {r['train_frames']:,}" if r.get("train_fps") else "—"
-        if r.get("train_fps_steady"):
-            train += f"; {r['train_fps_steady']:,.0f} steady"
+        train = "—"
+        if r.get("train_fps"):
+            train = f"{r['train_fps']:,.0f} over {r['train_frames']:,}"
+            if r.get("train_fps_steady"):
+                train += f"; {r['train_fps_steady']:,.0f} steady"
+        if r.get("train_fps_fdr"):
+            train = (f"FDR {r['train_fps_fdr']:,.0f} ({r['train_fps_fdr_steady']:,.0f} steady), "
+                     f"FDR + EDR {r['train_fps']:,.0f} ({r['train_fps_steady']:,.0f} steady) "
+                     f"over {r['train_frames']:,}")  # fmt: skip
         lines.append(
             f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r['frame_stack']} | "
             f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "

@@ -6,18 +6,23 @@ recurrent term is, per channel, a map from every location to every location of t
 as FT-RCN; no recurrent weight couples channels) or ``none`` (FC 256, the original PAAC).
 Heads: policy logits and state value.
 
-The network steps any batch of envs (..., C, H, W) with its recurrent state (``h``, ``c``),
-restarting from zeros wherever ``is_init`` is set; :class:`edr.rl.rollout.Actor` runs it over
+The network steps any batch of envs with its recurrent state (``h``, ``c``), restarting from
+zeros wherever ``is_init`` is set. Its input is the last frames stacked on the channel axis
+(..., n*C, H, W), or those n frames as they are, oldest first: then the first convolution sums
+each frame's convolution with its slice of the weights (:class:`FramesConv`), the same numbers
+without the copy of every frame but the newest that stacking them takes at each agent step; :class:`edr.rl.rollout.Actor` runs it over
 rollouts and :func:`paac_loss` differentiates what it output there.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Literal
 
 import torch
 from torch import nn
+from torch.nn import functional
 
 Core = Literal["lstm", "ftlstm", "none"]
 
@@ -48,21 +53,39 @@ class FeatureTrackingLSTMCell(nn.Module):
         return h.flatten(1), c.flatten(1)
 
 
+class FramesConv(nn.Conv2d):
+    """A convolution of n frames stacked on the channel axis, oldest first, taken as the n
+    frames [(B, C, H, W)] * n: the sum of every frame's convolution with its slice of the
+    weights, equal to the convolution of the stack (B, n*C, H, W) without building it."""
+
+    def forward(self, frames: Sequence[torch.Tensor]) -> torch.Tensor:  # -> (B, out, H', W')
+        if self.in_channels % len(frames):
+            raise ValueError(
+                f"{self.in_channels} input channels do not split into {len(frames)} frames"
+            )
+        weights = self.weight.split(self.in_channels // len(frames), dim=1)
+        out = functional.conv2d(frames[0], weights[0], self.bias, self.stride)
+        for frame, weight in zip(frames[1:], weights[1:], strict=True):
+            out = out + functional.conv2d(frame, weight, None, self.stride)
+        return out
+
+
 class PAACNetwork(nn.Module):
-    """(obs, h, c, is_init) -> (logits, value, h', c'); obs (..., C, 84, 84)."""
+    """(obs, h, c, is_init) -> (logits, value, h', c'); obs (..., C, 84, 84), C = ``in_channels``,
+    or n frames (..., C / n, 84, 84), oldest first."""
 
     def __init__(
         self, in_channels: int, num_actions: int, core: Core = "lstm", hidden: int = 256
     ) -> None:
         super().__init__()
         self.trunk = nn.Sequential(
-            nn.Conv2d(in_channels, 16, 8, stride=4),
+            FramesConv(in_channels, 16, 8, stride=4),
             nn.ReLU(),
             nn.Conv2d(16, 32, 4, stride=2),
             nn.ReLU(),
         ).to(memory_format=torch.channels_last)  # ~3x faster convolutions on CPU
         with torch.no_grad():
-            _, channels, h, w = self.trunk(torch.zeros(1, in_channels, 84, 84)).shape
+            _, channels, h, w = self.trunk([torch.zeros(1, in_channels, 84, 84)]).shape
         self.core_type, self.channels, self.locations = core, channels, h * w
         if core == "ftlstm":
             self.state_size = channels * h * w
@@ -89,10 +112,10 @@ class PAACNetwork(nn.Module):
                 layer.bias.zero_()
 
     def _step(
-        self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+        self, frames: list[torch.Tensor], h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, ...]:
         # (B, 32, 9, 9); observations may come as float16, and go channels-last as the trunk
-        maps = self.trunk(obs.to(torch.float32, memory_format=torch.channels_last))
+        maps = self.trunk([f.to(torch.float32, memory_format=torch.channels_last) for f in frames])
         if self.core_type == "ftlstm":
             h, c = self.cell(maps.flatten(2), (h, c))
             features = h
@@ -104,14 +127,19 @@ class PAACNetwork(nn.Module):
         return self.policy(features), self.value(features), h, c
 
     def forward(
-        self, obs: torch.Tensor, h: torch.Tensor, c: torch.Tensor, is_init: torch.Tensor
+        self,
+        obs: torch.Tensor | Sequence[torch.Tensor],
+        h: torch.Tensor,
+        c: torch.Tensor,
+        is_init: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One step of any batch of envs: obs (..., C, H, W), h and c (..., S), is_init (..., 1)
-        -> logits (..., A), value (..., 1), h' and c' (..., S)."""
-        batch = obs.shape[:-3]
+        """One step of any batch of envs: obs (..., C, H, W) or n frames (..., C / n, H, W),
+        h and c (..., S), is_init (..., 1) -> logits (..., A), value (..., 1), h' and c' (..., S)."""
+        frames = [obs] if isinstance(obs, torch.Tensor) else list(obs)
+        batch = frames[0].shape[:-3]
         keep = (~is_init.reshape(-1, 1)).to(h.dtype)  # a new episode starts from zeros
         flat_h, flat_c = h.reshape(-1, h.shape[-1]) * keep, c.reshape(-1, c.shape[-1]) * keep
-        out = self._step(obs.reshape(-1, *obs.shape[-3:]), flat_h, flat_c)
+        out = self._step([f.reshape(-1, *f.shape[-3:]) for f in frames], flat_h, flat_c)
         return tuple(o.reshape(*batch, o.shape[-1]) for o in out)
 
 

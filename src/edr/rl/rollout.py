@@ -20,11 +20,11 @@ from torchrl.envs import EnvBase
 from edr.rl.paac import PAACNetwork
 
 
-def observations_held(rollout_steps: int) -> int:
-    """How many observations an :class:`Actor` holds at once: a rollout's graph keeps its
-    ``rollout_steps`` observations while the env writes the next one (the size of a
-    ``FrameStack`` ring that never overwrites one still in use)."""
-    return rollout_steps + 1
+def observations_held(rollout_steps: int, frame_stack: int = 1) -> int:
+    """How many observations an :class:`Actor` holds at once: a rollout's graph keeps the
+    ``rollout_steps + frame_stack - 1`` frames its steps saw while the env writes the next one
+    (the size of a ``FrameStack`` ring that never overwrites one still in use)."""
+    return rollout_steps + frame_stack
 
 
 @dataclass
@@ -48,26 +48,43 @@ class Actor:
     """Plays ``network``'s policy (sampled) in ``env``, a batched env with ``InitTracker``.
 
     ``env`` writes ``observation`` (..., C, 84, 84), ``is_init``, ``reward``, ``done`` and
-    ``episode_reward`` (the raw score so far); its action is one-hot.
+    ``episode_reward`` (the raw score so far); its action is one-hot. The network sees the last
+    ``frame_stack`` observations, oldest first (an env that restarts repeats its first one), as
+    separate frames: nothing copies them into a stack.
     """
 
-    def __init__(self, env: EnvBase, network: PAACNetwork) -> None:
-        self.env, self.network = env, network
+    def __init__(self, env: EnvBase, network: PAACNetwork, frame_stack: int = 1) -> None:
+        self.env, self.network, self.frame_stack = env, network, frame_stack
         self.num_actions = env.action_spec.shape[-1]
         self._td: TensorDictBase | None = None  # the envs' current step; None: reset first
         self._h = self._c = torch.zeros(0)  # (N, state_size) the recurrent state
+        self._frames: list[torch.Tensor] = []  # the network's last input, (N, C, H, W) each
 
     def _state(self) -> TensorDictBase:
         if self._td is None:
             self._td = self.env.reset()
             n = self._td.batch_size.numel()
             self._h = self._c = torch.zeros(n, self.network.state_size)
+            self._frames = []
         return self._td
+
+    def _input(self, td: TensorDictBase) -> list[torch.Tensor]:
+        """The frames the network sees at step ``td``: the last input's, moved on by one."""
+        new = td["observation"]
+        if not self._frames:
+            return [new] * self.frame_stack
+        older = self._frames[1:]
+        restart = td["is_init"]  # (..., 1)
+        if restart.any():  # those envs' older frames become their first (new tensors: the
+            restart = restart[..., None, None]  # old ones may be in the graph)
+            older = [torch.where(restart, new, frame) for frame in older]
+        return [*older, new]
 
     def _act(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """Sample the action of every env at step ``td``; -> logits (N, A) and value (N, 1)."""
+        self._frames = self._input(td)
         logits, value, self._h, self._c = self.network(
-            td["observation"], self._h, self._c, td["is_init"]
+            self._frames, self._h, self._c, td["is_init"]
         )
         probs = logits.detach().reshape(-1, self.num_actions).softmax(-1)
         action = torch.multinomial(probs, 1).squeeze(-1)  # (N,)
@@ -92,7 +109,7 @@ class Actor:
             if done.any():
                 scores += out["next", "episode_reward"].reshape(-1, 1)[done].tolist()
         with torch.no_grad():
-            _, bootstrap, _, _ = self.network(td["observation"], self._h, self._c, td["is_init"])
+            _, bootstrap, _, _ = self.network(self._input(td), self._h, self._c, td["is_init"])
         self._td = td
         return Rollout(
             logits=torch.stack(logits, 1),

@@ -123,16 +123,14 @@ def train_paac(
         )
     name = env_id or game
     # ---- envs, network, optimizer ------------------------------------------------------------
-    env_kwargs = _env_kwargs(
-        name, preset, life_loss, env_module, input, fdr, edr, frame_stack, obs_dtype
-    )
-    network, arguments = _network(env_kwargs, core)
+    env_kwargs = _env_kwargs(name, preset, life_loss, env_module, input, fdr, edr, obs_dtype)
+    network, arguments = _network(env_kwargs, core, frame_stack)
     env = _env(
         num_envs=num_envs, mode=backend, keep_inputs=False,
-        stack_ring=observations_held(rollout_steps), **env_kwargs,
+        stack_ring=observations_held(rollout_steps, frame_stack), **env_kwargs,
     )  # fmt: skip
     env.set_seed(seed)
-    actor = Actor(env, network)
+    actor = Actor(env, network, frame_stack)
     optim = make_optimizer(
         optimizer,
         network.parameters(),
@@ -220,7 +218,7 @@ def train_paac(
     save()
 
     # ---- evaluation --------------------------------------------------------------------------
-    scores = _evaluate(network, env_kwargs, backend, seed, eval_plays, eval_max_steps)
+    scores = _evaluate(network, env_kwargs, frame_stack, backend, seed, eval_plays, eval_max_steps)
     save_atomic({"state_dict": network.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     _write_results(out_dir, history, scores, f"{name}, {INPUT_NAMES[input]}")
     scored = [row for row in history if "train/score" in row]
@@ -255,9 +253,10 @@ def _history_row(
 
 def _env_kwargs(
     name: str, preset: Preset, life_loss: bool, env_module: str | None, input: str, fdr: str,
-    edr: EDR | None, frame_stack: int, obs_dtype: str,
+    edr: EDR | None, obs_dtype: str,
 ) -> dict[str, Any]:  # fmt: skip
-    """What ``make_atari_env`` takes for this input (training and evaluation alike)."""
+    """What ``make_atari_env`` takes for this input (training and evaluation alike): one frame
+    per observation, which the :class:`Actor` stacks for the network."""
     return {
         "game": name,
         "preset": preset,
@@ -265,23 +264,24 @@ def _env_kwargs(
         "module": env_module,
         "fdr": fdr if input != "edr" else "none",
         "edr": edr if input != "fdr" else None,
-        "frame_stack": frame_stack,
         "obs_dtype": obs_dtype,
     }
 
 
-def _network(env_kwargs: dict[str, Any], core: Core) -> tuple[PAACNetwork, dict[str, Any]]:
-    """A fresh network for the observation and actions of these envs, and its arguments."""
+def _network(
+    env_kwargs: dict[str, Any], core: Core, frame_stack: int
+) -> tuple[PAACNetwork, dict[str, Any]]:
+    """A fresh network for ``frame_stack`` frames of these envs and their actions; its arguments."""
     probe = make_atari_env(mode="single", **env_kwargs)
     channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
     probe.close()
-    arguments = {"in_channels": channels, "num_actions": actions, "core": core}
+    arguments = {"in_channels": frame_stack * channels, "num_actions": actions, "core": core}
     return PAACNetwork(**arguments), arguments
 
 
 def _evaluate(
-    network: PAACNetwork, env_kwargs: dict[str, Any], backend: Backend, seed: int, plays: int,
-    max_steps: int,
+    network: PAACNetwork, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend,
+    seed: int, plays: int, max_steps: int,
 ) -> list[float]:  # fmt: skip
     """Raw scores of ``plays`` whole games (no life loss, no clipping), played at once on as many
     envs: EnvPool's when training used it, else serial (the network steps them as one batch)."""
@@ -290,7 +290,7 @@ def _evaluate(
     env.set_seed(seed + 1)
     try:
         with tqdm(total=plays, desc="evaluation", unit="game", leave=False) as bar:
-            return Actor(env, network).play(max_steps, on_end=bar.update)
+            return Actor(env, network, frame_stack).play(max_steps, on_end=bar.update)
     finally:
         env.close()
 
@@ -324,14 +324,14 @@ def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[s
     name = task["env_id"] or task["game"]
     env_kwargs = _env_kwargs(
         name, task["preset"], task["life_loss"], task["env_module"], task["input"], task["fdr"],
-        task["edr"], task["frame_stack"], task["obs_dtype"],
+        task["edr"], task["obs_dtype"],
     )  # fmt: skip
-    network, _ = _network(env_kwargs, task["core"])
+    network, _ = _network(env_kwargs, task["core"], task["frame_stack"])
     state = torch.load(run_dir / CHECKPOINT, weights_only=True)
     network.load_state_dict(state["network"])
     scores = _evaluate(
-        network, env_kwargs, task["backend"], record["seed"], plays or task["eval_plays"],
-        task["eval_max_steps"],
+        network, env_kwargs, task["frame_stack"], task["backend"], record["seed"],
+        plays or task["eval_plays"], task["eval_max_steps"],
     )  # fmt: skip
     _write_results(run_dir, state["history"], scores, f"{name}, {INPUT_NAMES[task['input']]}")
     metrics = {"train/frames": state["frames"], **_score_metrics(scores)}
