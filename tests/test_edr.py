@@ -304,3 +304,24 @@ def test_runs_on_gpu_like_on_cpu() -> None:
         cpu = edr(clip)
         gpu = edr.cuda()(clip.cuda()).cpu()
     torch.testing.assert_close(gpu, cpu, rtol=1e-5, atol=1e-5)
+
+
+def test_small_kernel_calls_run_on_one_thread_big_ones_on_torchs_count() -> None:
+    """One numba thread below PARALLEL_MIN_PIXELS: a parallel launch's spinning worker would
+    take more from the other core than it saves (a streaming env step of 16 Pong envs)."""
+    from edr.representations import kernels
+
+    before = torch.get_num_threads()
+    seen = []
+
+    def kernel(*args) -> None:
+        seen.append(numba.get_num_threads())
+
+    try:
+        torch.set_num_threads(2)
+        kernels.launch(kernel, kernels.PARALLEL_MIN_PIXELS - 1)
+        kernels.launch(kernel, kernels.PARALLEL_MIN_PIXELS)
+        assert seen == [1, min(2, numba.config.NUMBA_NUM_THREADS)]
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

@@ -317,6 +317,7 @@ class EDR(Representation):
             x = frames.contiguous().view(b, t, c_in, h * w)
         kernels.launch(
             kernels.edr_kernel,
+            b * t * h * w,
             x.numpy(),
             c_in if interleaved else 0,
             self.color == "gray" and c_in == 3,

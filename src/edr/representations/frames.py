@@ -72,6 +72,7 @@ class GrayDiff(Representation):
             target = buffers.output(out, shape, torch.float32, frames.device)
             kernels.launch(
                 kernels.gray_diff_kernel,
+                b * t * h * w,
                 frames.contiguous().view(b, t, c, h * w).numpy(),
                 np.float32(self.scale),
                 target.view(b, t - 1, 1, h * w).numpy(),

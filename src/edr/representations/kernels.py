@@ -5,7 +5,8 @@ Both kernels split the pixels of each clip into chunks that fit in L1/L2 and giv
 chunk stays in cache for the whole clip. They compute the same float32 expressions, in the same
 order, as the torch code in ``edr.py`` and ``frames.py``, so the two paths agree to rounding.
 Compiled code is cached on disk (``cache=True``): only the first call on a machine compiles.
-Call them through ``launch``, which runs them on as many threads as torch uses.
+Call them through ``launch``, which runs them on as many threads as torch uses, or on one for a
+small call (:data:`PARALLEL_MIN_PIXELS`).
 
 Threads: numba runs them on Intel TBB where the ``tbb`` wheel is installed (a dependency; loaded
 here, as numba looks for it only on the library path). TBB's threads take work from a shared
@@ -32,6 +33,12 @@ from numba import njit, prange
 from edr.representations.base import GRAY_WEIGHTS
 
 CHUNK = 4096  # pixels per work item: 16 KiB of float32 state per timescale
+# Fewer pixel-frames than this run on the launching thread alone. After a parallel launch TBB's
+# worker spins ~1 ms of CPU before it sleeps, whatever the launch's size: a streaming env step
+# of 16 Pong envs (113K pixels) took 0.25 ms on 1 thread and 0.23 ms on 2, plus that 1 ms taken
+# from the emulator's threads on the other core (EDR then cost 16 % of env steps/s). Two threads
+# save more than the spin only from ~1M pixel-frames on (0.28 ms at 0.9M, 1.8 ms at 3.6M).
+PARALLEL_MIN_PIXELS = 1 << 21
 
 
 def _load_tbb() -> str | None:
@@ -55,15 +62,17 @@ ZERO = np.float32(0.0)
 ONE = np.float32(1.0)
 
 
-def launch(kernel: Callable[..., None], *args: Any) -> None:
-    """``kernel(*args)`` on ``torch.get_num_threads()`` numba threads, leaving torch's count as is.
+def launch(kernel: Callable[..., None], pixels: int, *args: Any) -> None:
+    """``kernel(*args)`` on ``torch.get_num_threads()`` numba threads, leaving torch's count as is;
+    on one thread when the call covers fewer than ``PARALLEL_MIN_PIXELS`` pixel-frames.
 
     numba's OpenMP layer shares torch's libgomp and sets the pool to numba's own thread count on
     every launch, which would silently undo ``torch.set_num_threads`` (a ParallelEnv sets the main
     process to one thread so that its workers keep the cores; numba would make it two again).
     """
     threads = torch.get_num_threads()
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    wanted = threads if pixels >= PARALLEL_MIN_PIXELS else 1
+    numba.set_num_threads(min(wanted, numba.config.NUMBA_NUM_THREADS))
     try:
         kernel(*args)
     finally:
