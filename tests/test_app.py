@@ -84,3 +84,8 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     assert row.startswith("| Pong | envpool | 2 | 2 | float32 |")
     assert f"{record['cost']:.1f} %" in row and f"{record['train_fps']:,.0f} over 40" in row
     assert f"{record['train_fps_steady']:,.0f} steady" in row
+    assert record["train_fps_fdr"] > 0 and record["train_fps_fdr_steady"] > 0
+    assert (
+        f"(FDR: {record['train_fps_fdr']:,.0f}; {record['train_fps_fdr_steady']:,.0f} steady)"
+        in row
+    )

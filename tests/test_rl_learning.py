@@ -169,7 +169,9 @@ def test_frames_conv_equals_the_convolution_of_the_stack() -> None:
     for a, b in zip(stacked, split, strict=True):
         torch.testing.assert_close(a, b)
     weight = network.trunk[0].weight
-    grads = [torch.autograd.grad(out[0].sum() + out[1].sum(), weight)[0] for out in (stacked, split)]
+    grads = [
+        torch.autograd.grad(out[0].sum() + out[1].sum(), weight)[0] for out in (stacked, split)
+    ]
     torch.testing.assert_close(*grads)
     assert grads[0][:, :5].abs().sum() > 0  # the oldest frame's slice learns too
     with pytest.raises(ValueError, match="do not split into 3 frames"):

@@ -136,30 +136,30 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
         "`edr-bench --atari ENVS`: ENVS games on each backend (EnvPool's C++ threads in one",
         "process, or torchrl's ParallelEnv, a process per env), paac preset, random actions, played",
         "as a collector plays them; FDR RGB vs FDR RGB + EDR on gray (Appendix C's 5 channels per",
-        "frame), both stacked over the frames given, in the observation dtype given.",
+        "frame), both stacked by the env over the frames given (1: none, as `task=atari` builds its",
+        "envs since 2026-12-01: its network takes the last 4 frames as they come; the records",
+        "before stacked 4 in the env), in the observation dtype given.",
         "The two envs take turns; the cost is the median over pairs of rollouts of",
         "1 - (FDR+EDR steps/s) / (FDR steps/s), with the pairs' range. The goal is at most 5 %.",
         "Main CPU: CPU milliseconds the main process",
-        "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run).",
-        "Training: env steps/s of `task=atari`'s whole loop (FDR+EDR, ftlstm core, its defaults)",
+        "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run;",
+        "EnvPool's threads, in the main process, spin while the main thread works between steps).",
+        "Training: env steps/s of `task=atari`'s whole loop (FDR+EDR, ftlstm core, its defaults;",
+        "in brackets the same loop with FDR alone, timed just before, in the records that have it)",
         "on that backend, over the env steps given, as its progress bar reports them (from the",
         "first rollout on, kernel compilation included), then steady: from a quarter of the way on.",
         "",
-        "| Game | Backend | Envs | Frames stacked | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Training (steps/s) | Machine | Measured, git | Record |",
+        "| Game | Backend | Envs | Frames the env stacks | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Training (steps/s) | Machine | Measured, git | Record |",
         "|---|---|---:|---:|---|---:|---:|---:|---|---|---:|---|---|---|",
     ]
     for path, r in paired:
         fdr, edr = r["rows"]
         costs, m = r["costs"], r["machine"]
-        train = "—"
-        if r.get("train_fps"):
-            train = f"{r['train_fps']:,.0f} over {r['train_frames']:,}"
-            if r.get("train_fps_steady"):
-                train += f"; {r['train_fps_steady']:,.0f} steady"
+        train = f"{r['train_fps']:,.0f} over {r['train_frames']:,}" if r.get("train_fps") else "—"
+        if r.get("train_fps_steady"):
+            train += f"; {r['train_fps_steady']:,.0f} steady"
         if r.get("train_fps_fdr"):
-            train = (f"FDR {r['train_fps_fdr']:,.0f} ({r['train_fps_fdr_steady']:,.0f} steady), "
-                     f"FDR + EDR {r['train_fps']:,.0f} ({r['train_fps_steady']:,.0f} steady) "
-                     f"over {r['train_frames']:,}")  # fmt: skip
+            train += f" (FDR: {r['train_fps_fdr']:,.0f}; {r['train_fps_fdr_steady']:,.0f} steady)"
         lines.append(
             f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r['frame_stack']} | "
             f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "

@@ -15,7 +15,8 @@ Presets (the same on every backend):
 
 Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3
 or gray 1 channel, /255) and/or EDR events computed on the fly (``EDRTransform``), stacked over
-``frame_stack`` agent steps (``FrameStack``).
+``frame_stack`` agent steps (``FrameStack``; ``task=atari`` stacks none here: its actor hands
+the network the last frames as they are).
 The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 """
 
