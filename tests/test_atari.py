@@ -74,6 +74,10 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
     assert evaluated["train/frames"] == 1280 and evaluated["eval/plays"] == 1
     assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
+    (tmp_path / "bare").mkdir()
+    (tmp_path / "bare" / "run.json").write_text((tmp_path / "run.json").read_text())
+    with pytest.raises(FileNotFoundError, match=r"has no checkpoint\.pt: a run writes one"):
+        evaluate_checkpoint(tmp_path / "bare")
     monkeypatch.setattr(atari, "n_step_returns", real_returns)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
 

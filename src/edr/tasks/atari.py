@@ -327,7 +327,12 @@ def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[s
         task["edr"], task["obs_dtype"],
     )  # fmt: skip
     network, _ = _network(env_kwargs, task["core"], task["frame_stack"])
-    state = torch.load(run_dir / CHECKPOINT, weights_only=True)
+    if not (run_dir / CHECKPOINT).is_file():
+        raise FileNotFoundError(
+            f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
+            "updates and where Ctrl-C or SIGTERM stops it"
+        )
+    state = load_checkpoint(run_dir / CHECKPOINT)
     network.load_state_dict(state["network"])
     scores = _evaluate(
         network, env_kwargs, task["frame_stack"], task["backend"], record["seed"],
