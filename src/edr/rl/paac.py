@@ -10,8 +10,9 @@ The network steps any batch of envs with its recurrent state (``h``, ``c``), res
 zeros wherever ``is_init`` is set. Its input is the last frames stacked on the channel axis
 (..., n*C, H, W), or those n frames as they are, oldest first: then the first convolution sums
 each frame's convolution with its slice of the weights (:class:`FramesConv`), the same numbers
-without the copy of every frame but the newest that stacking them takes at each agent step; :class:`edr.rl.rollout.Actor` runs it over
-rollouts and :func:`paac_loss` differentiates what it output there.
+without the copy of every frame but the newest that stacking them takes at each agent step.
+:class:`edr.rl.rollout.Actor` runs it over rollouts and :func:`paac_loss` differentiates what it
+output there.
 """
 
 from __future__ import annotations
