@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import subprocess
+
 import pytest
 import torch
 
 from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene, write_video
-from edr.records import check_flat, read_record, write_record
+from edr.records import check_flat, git_revision, read_record, write_record
 
 
 def test_video_round_trip(tmp_path) -> None:
@@ -56,3 +58,25 @@ def test_metrics_must_be_flat() -> None:
     assert check_flat({"eval/accuracy": 0.5, "data/root": "x", "n": 3, "none": None})
     with pytest.raises(TypeError, match="eval/confusion"):
         check_flat({"eval/confusion": [[1, 0], [0, 1]]})
+
+
+def test_git_revision_is_dirty_for_code_changes_not_for_results(tmp_path) -> None:
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", "-c", "user.name=t", "-c", "user.email=t@t", *args],
+            cwd=tmp_path, check=True, capture_output=True, text=True,
+        ).stdout.strip()  # fmt: skip
+
+    git("init", "-q")
+    for name in ("src/code.py", "results/run.json", "paper/table.md"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("1")
+    git("add", ".")
+    git("commit", "-qm", "first")
+    head = git("rev-parse", "HEAD")
+    (tmp_path / "results/run.json").write_text("2")  # a run's output
+    (tmp_path / "paper/table.md").write_text("2")  # edr-tables' output
+    (tmp_path / "notes.txt").write_text("untracked")
+    assert git_revision(tmp_path / "src") == head
+    (tmp_path / "src/code.py").write_text("2")
+    assert git_revision(tmp_path / "src") == head + "+dirty"

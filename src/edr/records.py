@@ -25,15 +25,20 @@ from edr.atomic import write_json_atomic
 RECORD_NAME = "run.json"
 
 
+OUTPUT_DIRS = ("results", "paper")  # what runs and edr-tables write: no change to the code
+
+
 def git_revision(repo: Path | None = None) -> str:
-    """The checked-out commit, with ``+dirty`` when the tree has changes; ``unknown`` outside git."""
+    """The checked-out commit, with ``+dirty`` when tracked files outside the output folders
+    (:data:`OUTPUT_DIRS`) have changes; ``unknown`` outside git."""
     cwd = repo or Path(__file__).resolve().parent
+    excluded = [f":(top,exclude){folder}" for folder in OUTPUT_DIRS]
     try:
         rev = subprocess.run(
             ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, check=True
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ":(top)", *excluded],
             cwd=cwd,
             capture_output=True,
             text=True,
