@@ -326,12 +326,12 @@ def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[s
         name, task["preset"], task["life_loss"], task["env_module"], task["input"], task["fdr"],
         task["edr"], task["obs_dtype"],
     )  # fmt: skip
-    network, _ = _network(env_kwargs, task["core"], task["frame_stack"])
     if not (run_dir / CHECKPOINT).is_file():
         raise FileNotFoundError(
             f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
             "updates and where Ctrl-C or SIGTERM stops it"
         )
+    network, _ = _network(env_kwargs, task["core"], task["frame_stack"])
     state = load_checkpoint(run_dir / CHECKPOINT)
     network.load_state_dict(state["network"])
     scores = _evaluate(
