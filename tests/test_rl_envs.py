@@ -11,11 +11,11 @@ from torchrl.envs.utils import check_env_specs
 
 from edr.representations import EDR
 from edr.rl.envs import EnvPoolAtari, gym_atari, gym_image_env, make_atari_env
-from edr.rl.transform import EDRTransform, FrameStack
+from edr.rl.transform import FrameStack, ObservationFrame
 
 
-def _edr_transform(env) -> EDRTransform:
-    (found,) = [t for t in env.transform if isinstance(t, EDRTransform)]
+def _frame_transform(env) -> ObservationFrame:
+    (found,) = [t for t in env.transform if isinstance(t, ObservationFrame)]
     return found
 
 
@@ -74,12 +74,13 @@ def test_partial_reset_restarts_only_that_env(mode: str) -> None:
     env = make_atari_env("Pong", num_envs=3, mode=mode, fdr="none", edr=EDR(color="gray"))
     env.set_seed(1)
     rollout = env.rollout(6, break_when_any_done=False)
-    transform = _edr_transform(env)
-    ema_before, last_before = transform._state.ema.clone(), transform._last.clone()
+    transform = _frame_transform(env)
+    ema_before, last_before = transform._ema.clone(), transform._last.clone()
     mask = torch.tensor([[False], [True], [False]])
     # As a collector does: the current step's data, with the flag of the env that ended.
     out = env.reset(rollout[:, -1]["next"].clone().set("_reset", mask))
-    ema_after = transform._state.ema
+    ema_after = transform._ema.view(3, 1, 1, 84, 84)
+    ema_before = ema_before.view(3, 1, 1, 84, 84)
     torch.testing.assert_close(ema_after[[0, 2]], ema_before[[0, 2]])  # untouched
     torch.testing.assert_close(transform._last[[0, 2]], last_before[[0, 2]])
     torch.testing.assert_close(out["edr"][[0, 2]], last_before[[0, 2]])
@@ -172,7 +173,7 @@ def test_float16_observation_is_the_float32_one_rounded() -> None:
 
 def test_transform_is_not_for_stored_data() -> None:
     with pytest.raises(NotImplementedError, match="stateful"):
-        EDRTransform()(
+        ObservationFrame(edr=EDR(color="gray"))(
             TensorDict({"pixels": torch.zeros(2, 8, 8, 3, dtype=torch.uint8)}, batch_size=[2])
         )
 
@@ -208,3 +209,41 @@ def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
         make_atari_env("EdrCatch-v0", preset="none", module="catch_game", mode="envpool")
     with pytest.raises(ValueError, match="RGB image observations"):
         gym_image_env("CartPole-v1")
+
+
+@pytest.mark.parametrize("mode", ["serial", "envpool"])  # pixels interleaved, pixels planar
+@pytest.mark.parametrize(
+    ("fdr", "edr"),
+    [
+        ("rgb", {"color": "gray"}),
+        ("gray", {}),
+        ("none", {"half_lives": (1, 3.8), "combine": "sum", "return_form": "log",
+                  "threshold": "hard"}),
+        ("rgb", None),
+    ],
+)  # fmt: skip
+def test_one_pass_frame_equals_fdr_and_edr_step_by_torch(mode: str, fdr: str, edr) -> None:
+    """The fused kernel's frames equal torch's path (EDR(fast=False)): FDR / 255 then EDR's
+    events, per env, across a partial reset; FDR's channels are the pixels / 255 themselves."""
+    frames = []
+    for fast in (True, False):
+        env = make_atari_env(
+            "Pong",
+            num_envs=2,
+            mode=mode,
+            fdr=fdr,
+            edr=None if edr is None else EDR(**edr, fast=fast),
+        )
+        env.set_seed(5)
+        torch.manual_seed(5)
+        rollout = env.rollout(6, break_when_any_done=False)
+        out = env.reset(
+            rollout[:, -1]["next"].clone().set("_reset", torch.tensor([[True], [False]]))
+        )
+        frames.append(torch.cat([rollout["next", "observation"], out["observation"][:, None]], 1))
+        env.close()
+    torch.testing.assert_close(frames[0], frames[1])
+    if fdr == "rgb":
+        pixels = rollout["next", "pixels"].permute(0, 1, 4, 2, 3).float() / 255
+        torch.testing.assert_close(frames[0][:, :6, :3], pixels, rtol=0, atol=0)
+    assert frames[0][:, 1:, -2:].abs().sum() > 0 or edr is None  # the events of moving things

@@ -165,7 +165,7 @@ class EDR(Representation):
         check_clip(frames, name="frames")
         b, t, c, h, w = frames.shape
         shape = (b, t, self.out_channels(c), h, w)
-        if self._can_fuse(frames):
+        if self.can_fuse(frames):
             ema = torch.empty((b, self._channels(c), self.k, h, w))
             return self._fused(frames, ema, np.ones(b, np.bool_), out)
         state, outs = None, []
@@ -206,7 +206,7 @@ class EDR(Representation):
                 raise ValueError(
                     f"reset must have one flag per batch row ({b}), got {reset.numel()}"
                 )
-        if self._can_fuse(frame):
+        if self.can_fuse(frame):
             if state is None:
                 ema = torch.empty(shape, dtype=torch.float32)
                 restart = np.ones(b, np.bool_)
@@ -270,7 +270,7 @@ class EDR(Representation):
         events = torch.stack((on, off), dim=3)  # (B, C', K', 2, H, W)
         return events.reshape(b, -1, h, w).to(self.out_dtype), EDRState(ema)
 
-    def _can_fuse(self, x: torch.Tensor) -> bool:
+    def can_fuse(self, x: torch.Tensor) -> bool:
         needs_grad = torch.is_grad_enabled() and (x.requires_grad or self.learnable)
         return (
             self.fast
@@ -280,7 +280,7 @@ class EDR(Representation):
             and x.dtype in (torch.uint8, torch.float32)
         )
 
-    def _kernel_params(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def kernel_params(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(alpha, beta, on_th, off_th) as float32 arrays, recomputed only when a parameter changes."""
         params = (self.log_tau, self.beta, self.nu_on, self.nu_off)
         key = tuple((p.data_ptr(), p._version) for p in params)
@@ -308,7 +308,7 @@ class EDR(Representation):
         shape = (b, t, c * k_out * 2, h, w)
         target = buffers.output(out, shape, self.out_dtype, frames.device)
         events = target if buffers.writable(target) else buffers.RECYCLED.empty(shape)
-        alpha, beta, on_th, off_th = self._kernel_params()
+        alpha, beta, on_th, off_th = self.kernel_params()
         pixels_last = frames.permute(0, 1, 3, 4, 2)  # (B, T, H, W, C), a view
         interleaved = c_in > 1 and pixels_last.is_contiguous()  # as env pixels (H, W, C) come
         if interleaved:

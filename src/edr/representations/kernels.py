@@ -167,51 +167,136 @@ def edr_kernel(
         for t in range(n_frames):
             for c in range(n_chan):
                 _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, intensity)
-                if t == 0 and restart[b]:
-                    for k in range(n_k):
-                        ema[b, c, k, lo : lo + n] = intensity
-                if sum_k:
-                    acc[:] = ZERO
-                for k in range(n_k):
-                    em = ema[b, c, k, lo : lo + n]
-                    a = alpha[k]
-                    bk = beta[k]
-                    if sum_k:
-                        for i in range(n):
-                            e = em[i] + a * (intensity[i] - em[i])
-                            em[i] = e
-                            acc[i] += bk * np.log(intensity[i] / e)
-                        continue
-                    on = out[b, t, c, k, 0, lo : lo + n]
-                    off = out[b, t, c, k, 1, lo : lo + n]
-                    hi_th = on_th[k]
-                    lo_th = off_th[k]
-                    if not log_form and bk == ONE and not hard:
-                        # The paper's default (ratio form, beta 1, soft): the hot loop.
-                        for i in range(n):
-                            e = em[i] + a * (intensity[i] - em[i])
-                            em[i] = e
-                            r = intensity[i] / e
-                            on[i] = r - hi_th if r > hi_th else ZERO
-                            off[i] = lo_th - r if r < lo_th else ZERO
-                    else:
-                        for i in range(n):
-                            e = em[i] + a * (intensity[i] - em[i])
-                            em[i] = e
-                            ratio = intensity[i] / e
-                            if log_form:
-                                r = bk * np.log(ratio)
-                            elif bk == ONE:
-                                r = ratio
-                            else:
-                                r = ratio**bk
-                            _threshold(r, hi_th, lo_th, hard, on, off, i)
-                if sum_k:
-                    on = out[b, t, c, 0, 0, lo : lo + n]
-                    off = out[b, t, c, 0, 1, lo : lo + n]
-                    for i in range(n):
-                        r = acc[i] if log_form else np.exp(acc[i])
-                        _threshold(r, on_th[0], off_th[0], hard, on, off, i)
+                _edr_channel(
+                    ema, b, c, lo, n, intensity, t == 0 and restart[b], alpha, beta, on_th,
+                    off_th, log_form, hard, sum_k, acc, out, (b, t, c, lo),
+                )  # fmt: skip
+
+
+@njit(parallel=True, cache=True)
+def frame_kernel(
+    x,
+    interleaved,
+    fdr_channels,
+    fdr_gray,
+    edr_gray,
+    eps,
+    alpha,
+    beta,
+    on_th,
+    off_th,
+    log_form,
+    hard,
+    sum_k,
+    ema,
+    restart,
+    out,
+):
+    """One step of B envs -> their observation frames, channels-last, in one pass: FDR (the
+    pixels / 255), then EDR's events, carrying ``ema`` in place (``edr_kernel`` on one frame).
+
+    x            (B, 1, C_in, P), or (B, 1, 1, P * C_in) with ``interleaved`` = C_in (0: planar)
+    fdr_channels 0 (no FDR), 1 (``fdr_gray``: luma) or C_in
+    ema          (B, C, K, P) float32 (C = 0: no EDR); ``restart`` (B,) bool as in ``edr_kernel``
+    out          (B, P, fdr_channels + C * K_out * 2) float32; EDR's channel order is (C, K_out,
+                 ON / OFF), as ``edr_kernel``'s
+    """
+    n_batch = x.shape[0]
+    n_pix = x.shape[3] // interleaved if interleaved else x.shape[3]
+    n_chan, n_k = ema.shape[1], ema.shape[2]
+    n_kout = 1 if sum_k else n_k
+    n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    for job in prange(n_batch * n_chunks):
+        b, lo, n = _chunk(job, n_chunks, n_pix)
+        values = np.empty(n, np.float32)
+        acc = np.empty(n, np.float32)
+        events = np.empty((1, 1, 1, n_kout, 2, n), np.float32)  # one channel's, as edr_kernel's
+        for c in range(fdr_channels):
+            _load_intensity(x, b, 0, c, lo, n, fdr_gray, interleaved, ZERO, values)
+            dst = out[b, lo : lo + n, c]
+            for i in range(n):
+                dst[i] = values[i] / np.float32(255.0)
+        for c in range(n_chan):
+            _load_intensity(x, b, 0, c, lo, n, edr_gray, interleaved, eps, values)
+            _edr_channel(
+                ema, b, c, lo, n, values, restart[b], alpha, beta, on_th, off_th, log_form,
+                hard, sum_k, acc, events, (0, 0, 0, 0),
+            )  # fmt: skip
+            for j in range(n_kout * 2):
+                dst = out[b, lo : lo + n, fdr_channels + c * n_kout * 2 + j]
+                src = events[0, 0, 0, j // 2, j % 2]
+                for i in range(n):
+                    dst[i] = src[i]
+
+
+@njit(inline="always")
+def _edr_channel(ema, b, c, lo, n, intensity, first, alpha, beta, on_th, off_th, log_form, hard,
+                 sum_k, acc, out, at):  # fmt: skip
+    """Channel c of one frame at pixels lo..lo+n of row b: its EMAs ``ema[b, c, :]`` move on
+    (restarting from ``intensity`` (n,) when ``first``) and its events go to ``out[ob, ot, oc,
+    k, ON / OFF, olo:olo+n]``, (ob, ot, oc, olo) = ``at``."""
+    ob, ot, oc, olo = at
+    if first:
+        for k in range(ema.shape[2]):
+            ema[b, c, k, lo : lo + n] = intensity
+    if sum_k:
+        acc[:] = ZERO
+        for k in range(ema.shape[2]):
+            _ema_log_sum(ema[b, c, k, lo : lo + n], intensity, alpha[k], beta[k], acc)
+        on = out[ob, ot, oc, 0, 0, olo : olo + n]
+        off = out[ob, ot, oc, 0, 1, olo : olo + n]
+        _sum_events(acc, on_th[0], off_th[0], log_form, hard, on, off)
+        return
+    for k in range(ema.shape[2]):
+        on = out[ob, ot, oc, k, 0, olo : olo + n]
+        off = out[ob, ot, oc, k, 1, olo : olo + n]
+        _ema_events(
+            ema[b, c, k, lo : lo + n], intensity, alpha[k], beta[k], on_th[k], off_th[k],
+            log_form, hard, on, off,
+        )  # fmt: skip
+
+
+@njit(inline="always")
+def _ema_events(em, intensity, a, bk, hi_th, lo_th, log_form, hard, on, off):
+    """One timescale: ``em`` (n,) moves toward ``intensity`` (n,) by ``a``; the ON / OFF events
+    of the ratio ``intensity / em`` (its ``bk`` power, or ``bk`` log) into ``on`` and ``off``."""
+    if not log_form and bk == ONE and not hard:
+        # The paper's default (ratio form, beta 1, soft): the hot loop.
+        for i in range(intensity.shape[0]):
+            e = em[i] + a * (intensity[i] - em[i])
+            em[i] = e
+            r = intensity[i] / e
+            on[i] = r - hi_th if r > hi_th else ZERO
+            off[i] = lo_th - r if r < lo_th else ZERO
+        return
+    for i in range(intensity.shape[0]):
+        e = em[i] + a * (intensity[i] - em[i])
+        em[i] = e
+        ratio = intensity[i] / e
+        if log_form:
+            r = bk * np.log(ratio)
+        elif bk == ONE:
+            r = ratio
+        else:
+            r = ratio**bk
+        _threshold(r, hi_th, lo_th, hard, on, off, i)
+
+
+@njit(inline="always")
+def _ema_log_sum(em, intensity, a, bk, acc):
+    """One timescale of a summed response: ``em`` moves on; ``acc += bk * log(intensity / em)``."""
+    for i in range(intensity.shape[0]):
+        e = em[i] + a * (intensity[i] - em[i])
+        em[i] = e
+        acc[i] += bk * np.log(intensity[i] / e)
+
+
+@njit(inline="always")
+def _sum_events(acc, hi_th, lo_th, log_form, hard, on, off):
+    """The events of a summed log response ``acc`` (its exp unless ``log_form``)."""
+    for i in range(acc.shape[0]):
+        r = acc[i] if log_form else np.exp(acc[i])
+        _threshold(r, hi_th, lo_th, hard, on, off, i)
 
 
 @njit(inline="always")

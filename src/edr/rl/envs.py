@@ -14,9 +14,9 @@ Presets (the same on every backend):
   resized to 84x84 if they are not.
 
 Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3
-or gray 1 channel, /255) and/or EDR events computed on the fly (``EDRTransform``), stacked over
-``frame_stack`` agent steps (``FrameStack``; ``task=atari`` stacks none here: its actor hands
-the network the last frames as they are).
+or gray 1 channel, /255) and/or EDR events computed on the fly, written in one pass
+(``ObservationFrame``), stacked over ``frame_stack`` agent steps (``FrameStack``; ``task=atari``
+stacks none here: its actor hands the network the last frames as they are).
 The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 """
 
@@ -40,18 +40,16 @@ from torchrl.envs import (
     Compose,
     EnvBase,
     ExcludeTransform,
-    GrayScale,
     GymWrapper,
     ParallelEnv,
     RewardSum,
     SerialEnv,
     SignTransform,
-    ToTensorImage,
     TransformedEnv,
 )
 
 from edr.representations import EDR
-from edr.rl.transform import EDRTransform, FrameStack
+from edr.rl.transform import FrameStack, ObservationFrame
 
 gym.register_envs(ale_py)
 
@@ -247,10 +245,11 @@ def make_atari_env(
 
     With ``preset="none"``, ``game`` is a gymnasium id (and ``module`` the module to import).
 
-    ``keep_inputs=False`` drops the pixels and the unstacked FDR / EDR images once the
-    observation is stacked: a training rollout then stores the observation alone.
-    ``stack_ring=k``: the observations cycle through ``k`` buffers (:class:`FrameStack`), each
-    overwritten ``k`` steps after it was emitted; None: a new tensor every step.
+    ``keep_inputs=True`` also keeps the pixels, and FDR and EDR as ``fdr`` and ``edr`` (views of
+    the frame's channels); False: a training rollout stores the observation alone.
+    ``stack_ring=k``: the observations cycle through ``k`` buffers (:class:`ObservationFrame`, or
+    :class:`FrameStack` when it stacks), each overwritten ``k`` steps after it was emitted; None:
+    a new tensor every step.
     """
     if fdr == "none" and edr is None:
         raise ValueError("the observation needs FDR, EDR or both")
@@ -271,23 +270,17 @@ def make_atari_env(
         base = EnvPoolAtari(game, num_envs, preset, train, life_loss)
     else:
         raise ValueError(f"backend must be envpool, parallel, serial or single, got {mode!r}")
-    parts = ["fdr"] if fdr != "none" else []
     transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"])]
     if preset == "paac" and train:
         transforms.append(SignTransform(in_keys=["reward"]))
-    if edr is not None:
-        transforms.append(EDRTransform(edr, in_keys=["pixels"], out_keys=["edr"]))
-        parts.append("edr")
-    if fdr != "none":
-        transforms.append(ToTensorImage(in_keys=["pixels"], out_keys=["fdr"]))
-        if fdr == "gray":
-            transforms.append(GrayScale(in_keys=["fdr"]))
     if obs_dtype not in ("float32", "float16"):
         raise ValueError(f"obs_dtype must be float32 or float16, got {obs_dtype!r}")
-    stack = FrameStack(
-        frame_stack, parts, "observation", dtype=getattr(torch, obs_dtype), ring=stack_ring
+    stacked = frame_stack > 1 or obs_dtype != "float32"
+    transforms.append(
+        ObservationFrame(fdr, edr, keep_parts=keep_inputs, ring=None if stacked else stack_ring)
     )
-    transforms.append(stack)
+    if stacked:
+        transforms.append(FrameStack(frame_stack, dtype=getattr(torch, obs_dtype), ring=stack_ring))
     if not keep_inputs:
-        transforms.append(ExcludeTransform("pixels", *parts))
+        transforms.append(ExcludeTransform("pixels"))
     return TransformedEnv(base, Compose(*transforms))
