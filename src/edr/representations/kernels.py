@@ -195,7 +195,7 @@ def frame_kernel(
     """One step of B envs -> their observation frames, channels-last, in one pass: FDR (the
     pixels / 255), then EDR's events, carrying ``ema`` in place (``edr_kernel`` on one frame).
 
-    x            (B, 1, C_in, P), or (B, 1, 1, P * C_in) with ``interleaved`` = C_in (0: planar)
+    x            (B, 1, C_in, P) uint8, or (B, 1, 1, P * C_in) with ``interleaved`` = C_in (0: planar)
     fdr_channels 0 (no FDR), 1 (``fdr_gray``: luma) or C_in
     ema          (B, C, K, P) float32 (C = 0: no EDR); ``restart`` (B,) bool as in ``edr_kernel``
     out          (B, P, fdr_channels + C * K_out * 2) float32; EDR's channel order is (C, K_out,
@@ -206,16 +206,26 @@ def frame_kernel(
     n_chan, n_k = ema.shape[1], ema.shape[2]
     n_kout = 1 if sum_k else n_k
     n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    by_255 = np.arange(256).astype(np.float32) / np.float32(255.0)  # v / 255 for each uint8 v
     for job in prange(n_batch * n_chunks):
         b, lo, n = _chunk(job, n_chunks, n_pix)
         values = np.empty(n, np.float32)
         acc = np.empty(n, np.float32)
         events = np.empty((1, 1, 1, n_kout, 2, n), np.float32)  # one channel's, as edr_kernel's
         for c in range(fdr_channels):
-            _load_intensity(x, b, 0, c, lo, n, fdr_gray, interleaved, ZERO, values)
             dst = out[b, lo : lo + n, c]
-            for i in range(n):
-                dst[i] = values[i] / np.float32(255.0)
+            if fdr_gray:
+                _load_intensity(x, b, 0, 0, lo, n, True, interleaved, ZERO, values)
+                for i in range(n):
+                    dst[i] = values[i] / np.float32(255.0)
+            elif interleaved:
+                px = x[b, 0, 0, interleaved * lo : interleaved * (lo + n)]
+                for i in range(n):
+                    dst[i] = by_255[px[interleaved * i + c]]
+            else:
+                xc = x[b, 0, c, lo : lo + n]
+                for i in range(n):
+                    dst[i] = by_255[xc[i]]
         for c in range(n_chan):
             _load_intensity(x, b, 0, c, lo, n, edr_gray, interleaved, eps, values)
             _edr_channel(

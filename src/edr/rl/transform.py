@@ -122,9 +122,9 @@ class ObservationFrame(_PerEnvStream):
     written in one pass over the pixels by ``kernels.frame_kernel``, on the calling thread.
 
     One pass where FDR's conversion, EDR's step and joining the two took three, each with its
-    own torch ops (16 Pong envs: EDR then cost 15 % of EnvPool's steps/s instead of ~2 %). An
-    EDR the kernel cannot run (``fast=False``, learnable, float64) takes torch's path, to the
-    same numbers. ``keep_parts`` also writes ``fdr`` and ``edr``: views of the frame's channels.
+    own torch ops (16 Pong envs: EDR then cost 15 % of EnvPool's steps/s instead of ~4 %).
+    Pixels other than uint8, or an EDR the kernel cannot run (``fast=False``, learnable,
+    float64), take torch's path, to the same numbers. ``keep_parts`` also writes ``fdr`` and ``edr``: views of the frame's channels.
     ``ring=k``: the frames cycle through ``k`` buffers (see :class:`FrameStack`).
     """
 
@@ -165,7 +165,7 @@ class ObservationFrame(_PerEnvStream):
             out = torch.empty(n, c_fdr + c_edr, h, w, memory_format=torch.channels_last)
         else:
             out = self._ring.next(self._last)
-        if self.edr is not None and not self.edr.can_fuse(x):
+        if x.dtype != torch.uint8 or (self.edr is not None and not self.edr.can_fuse(x)):
             self._torch_frame(x, ema, restart, out)
             return out
         planar = c_in == 1 or not x.permute(0, 2, 3, 1).is_contiguous()
@@ -198,6 +198,8 @@ class ObservationFrame(_PerEnvStream):
             out[:, :c_fdr] = to_float(x) / 255
         elif self.fdr == "gray":
             out[:, :c_fdr] = to_gray(x, channel_dim=1) / 255
+        if self.edr is None:
+            return
         state = EDRState(ema.view(*ema.shape[:3], *x.shape[-2:]))
         events, new = self.edr.step(x, state, reset=torch.from_numpy(restart))
         out[:, c_fdr:] = events
