@@ -146,3 +146,24 @@ def test_incomparable_runs_land_in_two_rows(compose_config, tmp_path) -> None:
     assert len(rows) == 2 and rows[0][:2] == rows[1][:2] == ["lenet_ftrcn", "edr"]
     assert rows[0][-1] != rows[1][-1]  # two cells
     assert len(load_runs([tmp_path / "runs"])) == 2
+
+
+def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> None:
+    import pandas as pd
+
+    from edr.report.atari import atari_runs
+
+    runs = pd.DataFrame(
+        {
+            "task": ["atari"] * 3,
+            "status": ["finished"] * 3,
+            "fingerprint": ["a", "b", "c"],
+            "scale": ["full", "full", "tiny"],
+            "config.task.game": ["Pong"] * 3,
+            "config.task.input": ["fdr_edr"] * 3,
+            "config.task.total_frames": [10_000_000, 80_000_000, 2_000],
+        }
+    )
+    assert atari_runs(runs)["scale"].tolist() == [
+        "full settings, but 10M of the paper's 80M env steps", "full", "tiny",
+    ]  # fmt: skip

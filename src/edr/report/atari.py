@@ -17,13 +17,23 @@ SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metr
 INPUTS = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}
 
 
+PAPER_ENV_STEPS = 80_000_000  # Table 1's budget per game (``task.total_frames``'s default)
+
+
 def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """Finished Atari runs with ``game`` and ``input`` columns."""
+    """Finished Atari runs with ``game`` and ``input`` columns; a full-scale run trained on fewer
+    env steps than the paper's says so in its ``scale``."""
     done = finished(runs, "atari").copy()
     if done.empty:
         return done.assign(game=[], input=[])
     done["game"] = done["config.task.game"]
     done["input"] = done["config.task.input"]
+    budget = pd.to_numeric(done.get("config.task.total_frames"), errors="coerce")
+    cut = (done["scale"] == "full") & (budget < PAPER_ENV_STEPS)
+    done.loc[cut, "scale"] = [
+        f"full settings, but {steps / 1e6:g}M of the paper's {PAPER_ENV_STEPS / 1e6:g}M env steps"
+        for steps in budget[cut]
+    ]
     return done
 
 

@@ -1,9 +1,11 @@
 """Fused CPU kernels (numba) for inference: one pass over the pixels per frame, no temporaries.
 
-Both kernels split the pixels of each clip into chunks that fit in L1/L2 and give every
+The kernels split the pixels of each clip into chunks that fit in L1/L2 and give every
 (batch row, chunk) to one thread, which then walks the frames in order: the EMA state of its
 chunk stays in cache for the whole clip. They compute the same float32 expressions, in the same
 order, as the torch code in ``edr.py`` and ``frames.py``, so the two paths agree to rounding.
+``frame_kernel`` is ``edr_kernel`` for one streaming step that also writes FDR: an Atari
+observation frame in one pass (``edr.rl.transform.ObservationFrame``).
 Compiled code is cached on disk (``cache=True``): only the first call on a machine compiles.
 Call them through ``launch``, which runs them on as many threads as torch uses, or on one for a
 small call (:data:`PARALLEL_MIN_PIXELS`).
