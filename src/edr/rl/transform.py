@@ -125,8 +125,9 @@ class ObservationFrame(_PerEnvStream):
     One pass where FDR's conversion, EDR's step and joining the two took three, each with its
     own torch ops (16 Pong envs: EDR then cost 14-17 % of EnvPool's steps/s, now 6-9 %).
     Pixels other than uint8, or an EDR the kernel cannot run (``fast=False``, learnable,
-    float64), take torch's path, to the same numbers. ``keep_parts`` also writes ``fdr`` and ``edr``: views of the frame's channels.
-    ``ring=k``: the frames cycle through ``k`` buffers (see :class:`FrameStack`).
+    float64), take torch's path, to the same numbers. ``keep_parts`` also writes ``fdr`` and
+    ``edr``: views of the frame's channels. ``ring=k``: the frames cycle through ``k`` buffers
+    (see :class:`FrameStack`).
     """
 
     def __init__(
