@@ -129,9 +129,12 @@ class EDR(Representation):
                 self.register_buffer(name, value)
 
     # ---- sizes -------------------------------------------------------------------------------
+    def state_channels(self, in_channels: int) -> int:
+        """C' of the state (B, C', K, H, W) and of the events: 1 on gray, else the input's."""
+        return 1 if self.color == "gray" else in_channels
+
     def out_channels(self, in_channels: int) -> int:
-        c = 1 if self.color == "gray" else in_channels
-        return c * 2 * (1 if self.combine == "sum" else self.k)
+        return self.state_channels(in_channels) * 2 * (1 if self.combine == "sum" else self.k)
 
     def preview(self, out_t: torch.Tensor) -> np.ndarray:
         """ON events (summed over channels and timescales) in green, OFF in red."""
@@ -166,7 +169,7 @@ class EDR(Representation):
         b, t, c, h, w = frames.shape
         shape = (b, t, self.out_channels(c), h, w)
         if self.can_fuse(frames):
-            ema = torch.empty((b, self._channels(c), self.k, h, w))
+            ema = torch.empty((b, self.state_channels(c), self.k, h, w))
             return self._fused(frames, ema, np.ones(b, np.bool_), out)
         state, outs = None, []
         for i in range(t):
@@ -197,7 +200,7 @@ class EDR(Representation):
         """
         check_frame(frame)
         b, c, h, w = frame.shape
-        shape = (b, self._channels(c), self.k, h, w)
+        shape = (b, self.state_channels(c), self.k, h, w)
         if state is not None and tuple(state.ema.shape) != shape:
             raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")
         if reset is not None:
@@ -232,9 +235,6 @@ class EDR(Representation):
         ), state
 
     # ---- the two paths -----------------------------------------------------------------------
-    def _channels(self, in_channels: int) -> int:
-        return 1 if self.color == "gray" else in_channels
-
     def _intensity(self, frame: torch.Tensor) -> torch.Tensor:
         """(B, C, H, W) -> (B, C', H, W) intensities + eps, in the compute dtype."""
         x = frame.to(self._compute_dtype)

@@ -124,8 +124,9 @@ class EnvPoolAtari(EnvBase):
     """``num_envs`` Atari games stepped by EnvPool's thread pool, as one batched torchrl env.
 
     Observations ``pixels`` (N, 84, 84, 3) uint8 (a view of EnvPool's planar frames), rewards
-    raw: what the gymnasium backend gives, so the same transforms follow. Envs reset only when torchrl asks (``_reset`` names
-    them); EnvPool's own auto-reset never fires, because an ended env is reset before it steps.
+    raw: what the gymnasium backend gives, so the same transforms follow. Envs reset only when
+    torchrl asks (``_reset`` names them); EnvPool's own auto-reset never fires, because an ended
+    env is reset before it steps.
     """
 
     def __init__(
@@ -178,7 +179,8 @@ class EnvPoolAtari(EnvBase):
     def _frames(obs: np.ndarray) -> torch.Tensor:
         """EnvPool's (N, 3, H, W) -> (N, H, W, 3), a view: planar in memory, as the observation's
         kernel reads it best (EnvPool gives new arrays every step). A copy into (H, W, 3) memory
-        cost 16 Pong envs ~20 % of their steps/s: torch's threads then spin on the emulator's cores."""
+        cost 16 Pong envs ~20 % of their steps/s: torch's threads then spun on the emulator's
+        cores."""
         return torch.from_numpy(obs).permute(0, 2, 3, 1)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

@@ -211,8 +211,7 @@ class ObservationFrame(_PerEnvStream):
         n, c_in, h, w = x.shape
         if self.edr is None:
             return torch.empty(n, 0, 1, h * w)
-        channels = 1 if self.edr.color == "gray" else c_in
-        return torch.empty(n, channels, self.edr.k, h * w)
+        return torch.empty(n, self.edr.state_channels(c_in), self.edr.k, h * w)
 
     def _restart(self, x: torch.Tensor, rows: torch.Tensor | None) -> torch.Tensor:
         if rows is None or self._ema is None:
