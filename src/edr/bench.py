@@ -278,6 +278,7 @@ def atari_throughput(
             edr=edr,
             frame_stack=frame_stack,
             obs_dtype=obs_dtype,
+            keep_inputs=False,  # as task=atari trains: the observation alone
             stack_ring=observations_held(TRAIN_ROLLOUT_STEPS, TRAIN_FRAME_STACK),
         )
         for edr in configs.values()
