@@ -38,18 +38,23 @@ def test_demo_runs_and_writes_a_record(compose_config, tmp_path) -> None:
 
 @pytest.mark.slow
 def test_multirun_sweep_writes_one_record_per_run(cli, tmp_path) -> None:
-    result = cli(
-        "edr-run", "-m", "debug=tiny", "seed=0,1", f"hydra.sweep.dir={tmp_path}/sweep", cwd=tmp_path
-    )
+    """As the README writes it: no hydra.sweep.dir; the same command again skips every cell."""
+    result = cli("edr-run", "-m", "debug=tiny", "seed=0,1", cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
-    records = sorted((tmp_path / "sweep").glob("*/run.json"))
+    sweep = tmp_path / "results" / "sweeps" / "representation_demo"
+    records = sorted(sweep.glob("*/run.json"))
     assert [r.parent.name for r in records] == ["debug=tiny,seed=0", "debug=tiny,seed=1"]
     seeds = {json.loads(r.read_text())["config"]["seed"] for r in records}
     assert seeds == {0, 1}
     first, second = (json.loads(r.read_text()) for r in records)
     assert first["choices"]["task"] == "representation_demo" and first["scale"] == "tiny"
     assert first["cell"] == second["cell"] and first["fingerprint"] != second["fingerprint"]
-    assert "0 skipped, 0 resumed, 2 ran, 0 failed" in result.stdout + result.stderr
+    output = result.stdout + result.stderr
+    assert "0 skipped, 0 resumed, 2 ran, 0 failed" in output
+    assert "representation_demo #1 finished:" in output  # a line per cell, with its job index
+    again = cli("edr-run", "-m", "debug=tiny", "seed=0,1", cwd=tmp_path)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "2 skipped, 0 resumed, 0 ran, 0 failed" in again.stdout + again.stderr
 
 
 def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
@@ -78,7 +83,16 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     assert all(ms > 0 for ms in record["main_cpu_ms"])
     assert "EDR costs" in capsys.readouterr().out
     assert not (tmp_path / "paper").exists()  # edr-bench writes records only
-    tables.main(["--runs", str(tmp_path), "--out", str(tmp_path / "paper")])
+    tables.main(
+        [
+            "--runs",
+            str(tmp_path),
+            "--bench",
+            str(tmp_path / "bench"),
+            "--out",
+            str(tmp_path / "paper"),
+        ]
+    )
     text = (tmp_path / "paper" / "atari_edr_cost.md").read_text()
     (row,) = [line for line in text.splitlines() if record_path.name in line]
     assert row.startswith("| Pong | envpool | 2 | 2 | float32 |")

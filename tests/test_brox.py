@@ -3,6 +3,8 @@ constant image; and the ground-truth pairs that edr.flow_accuracy scores every f
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -81,3 +83,18 @@ def test_ground_truth_is_the_flow_from_the_first_frame(kind: str) -> None:
     field = warp_field(kind, h, w)
     assert 0.1 < np.abs(truth - field).max() < 0.3
     assert residual(truth) < residual(field) and residual(truth) < 2.0  # two bicubic resamplings
+
+
+def test_flow_accuracy_writes_a_record_that_edr_tables_renders(tmp_path) -> None:
+    """``python -m edr.flow_accuracy`` writes a record only; ``edr-tables`` renders it."""
+    from edr import flow_accuracy, tables
+
+    flow_accuracy.main(["--out-dir", str(tmp_path / "bench")])
+    (record,) = (tmp_path / "bench").glob("flow_accuracy_*.json")
+    assert [p.name for p in tmp_path.rglob("*.md")] == []
+    tables.main(["--runs", str(tmp_path), "--bench", str(tmp_path / "bench"),
+                 "--out", str(tmp_path / "paper")])  # fmt: skip
+    text = (tmp_path / "paper" / "flow_accuracy.md").read_text()
+    epe = json.loads(record.read_text())["epe"]
+    assert f"| Brox | {epe['Brox']['translation']:.3f} |" in text and record.name in text
+    assert epe["Brox"]["translation"] < 0.2  # a working Brox recovers a 2.7-pixel shift

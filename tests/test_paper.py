@@ -96,6 +96,20 @@ def test_table2_ucf101_with_the_speed_column(paper) -> None:
 
 
 @pytest.mark.slow
+def test_published_numbers_from_another_file_reach_every_speed_table(paper, tmp_path) -> None:
+    """``edr-tables --published FILE``: the speed tables read FILE too, not the packaged one."""
+    mine = tmp_path / "published.yaml"
+    mine.write_text("speed:\n  fps: {edr: 1234.5}\n  edr_over_graydiff: mine\n")
+    root = paper.parent
+    tables.main(["--runs", str(root / "sweeps"), "--bench", str(root / "bench"),
+                 "--out", str(tmp_path / "paper"), "--published", str(mine)])  # fmt: skip
+    speed = (tmp_path / "paper" / "table2_speed.md").read_text()
+    assert "1,234.5" in speed and "9,800.0" not in speed and "| mine |" in speed
+    table2 = (tmp_path / "paper" / "table2_ucf101.md").read_text()
+    assert "1,234.5" in table2 and "9,800.0" not in table2
+
+
+@pytest.mark.slow
 def test_table3_event_camera(paper) -> None:
     text = (paper / "table3_event_camera.md").read_text()
     _labelled(text)

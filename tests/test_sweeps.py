@@ -87,13 +87,14 @@ def test_ctrl_c_or_sigterm_ends_with_one_line_saying_how_to_resume(sent, status,
 
 @pytest.mark.slow
 def test_two_parallel_joblib_jobs_write_complete_records(cli, tmp_path) -> None:
+    """No hydra.sweep.dir: the default folder resolves under joblib's launcher too."""
     result = cli(
         "edr-run", "-m", "hydra/launcher=parallel", "task=kth", "debug=tiny",
-        "representation=edr,fdr", f"hydra.sweep.dir={tmp_path / 'sweep'}",
-        cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")},
+        "representation=edr,fdr", cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")},
     )  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
-    records = [json.loads(p.read_text()) for p in sorted((tmp_path / "sweep").glob("*/run.json"))]
+    sweep = tmp_path / "results" / "sweeps" / "kth"
+    records = [json.loads(p.read_text()) for p in sorted(sweep.glob("*/run.json"))]
     assert [r["choices"]["representation"] for r in records] == ["edr", "fdr"]
     assert all(r["status"] == "finished" and r["metrics"]["train/epochs"] == 2 for r in records)
     assert records[0]["data"]["fingerprint"] == records[1]["data"]["fingerprint"]
@@ -102,14 +103,16 @@ def test_two_parallel_joblib_jobs_write_complete_records(cli, tmp_path) -> None:
 
 @pytest.mark.slow
 def test_submitit_local_runs_a_job_end_to_end(cli, tmp_path) -> None:
+    """An experiment's sweep with no hydra.sweep.dir, through submitit's executor."""
     result = cli(
         "edr-run", "-m", "hydra/launcher=local_jobs", "hydra.launcher.timeout_min=10",
-        "task=kth", "debug=tiny", f"hydra.sweep.dir={tmp_path / 'sweep'}",
-        cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")},
+        "experiment=table4_kth", "debug=tiny", "representation=edr", "backbone=lenet_ftrcn",
+        "seed=0", cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")},
     )  # fmt: skip
     if result.returncode != 0 and "submitit" in result.stderr and "No such file" in result.stderr:
         pytest.skip(f"submitit cannot start a local job here: {result.stderr[-500:]}")
     assert result.returncode == 0, result.stderr[-3000:]
-    (record,) = (tmp_path / "sweep").glob("*/run.json")
+    sweep = tmp_path / "results" / "sweeps" / "table4_kth"
+    (record,) = sweep.glob("*/run.json")
     assert json.loads(record.read_text())["status"] == "finished"
-    assert (tmp_path / "sweep" / ".submitit").is_dir()  # it went through submitit's executor
+    assert (sweep / ".submitit").is_dir()  # it went through submitit's executor

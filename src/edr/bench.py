@@ -35,6 +35,7 @@ from edr.allocator import keep_freed_memory
 from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene
 from edr.records import git_revision, machine_info
+from edr.report.published import load_published
 from edr.report.speed import atari_cost_table, speed_table
 from edr.representations import (
     EDR,
@@ -330,8 +331,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--long-frames", type=int, default=250, help="frames of the long clip (plain call, out=)"
     )
-    parser.add_argument("--height", type=int, default=240)
-    parser.add_argument("--width", type=int, default=320)
+    parser.add_argument("--height", type=int, default=240, help="frame height of the timed clip")
+    parser.add_argument("--width", type=int, default=320, help="frame width of the timed clip")
     parser.add_argument("--atari-batch", type=int, default=32, help="envs in the Atari-like batch")
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per row (median)")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
@@ -366,7 +367,9 @@ def main(argv: list[str] | None = None) -> None:
         default="float32",
         help="the observation stack's dtype, float32 as task=atari trains (--atari)",
     )
-    parser.add_argument("--out-dir", type=Path, default=Path("results/bench"))
+    parser.add_argument(
+        "--out-dir", type=Path, default=Path("results/bench"), help="where the record is written"
+    )
     args = parser.parse_args(argv)
     repeats = 2 if args.quick else args.repeats
     if args.threads:
@@ -465,7 +468,7 @@ def main(argv: list[str] | None = None) -> None:
         "rows": [asdict(r) for r in rows],
     }
     path = write_json_atomic(args.out_dir / f"speed_{machine['hostname']}_{stamp}.json", record)
-    print(speed_table(record, str(path)))
+    print(speed_table(record, load_published().get("speed", {}), str(path)))
     print(f"record: {path} (edr-tables renders paper/table2_speed.md from the latest record)")
 
 

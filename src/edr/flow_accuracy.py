@@ -1,6 +1,8 @@
 """Optical flow against ground truth: frame pairs made by warping a real image with known flows.
 
-``python -m edr.flow_accuracy`` writes ``paper/flow_accuracy.md``: the average endpoint error
+``python -m edr.flow_accuracy`` writes a record, ``results/bench/flow_accuracy_<host>_<time>.json``,
+and prints its table; ``edr-tables`` renders the newest into ``paper/flow_accuracy.md``: the
+average endpoint error
 (EPE, pixels) of Brox, TV-L1 and Farneback on four pairs made from the photograph matplotlib
 ships (``grace_hopper.jpg``, gray, 320x240): a translation, a rotation, a zoom and a smooth
 random field, each at most a few pixels, as between consecutive video frames.
@@ -22,10 +24,10 @@ import cv2
 import numpy as np
 import torch
 
-from edr.atomic import write_text_atomic
+from edr.atomic import write_json_atomic
 from edr.records import git_revision, machine_info
+from edr.report.flow_accuracy import KINDS, flow_accuracy_table
 
-KINDS = ("translation", "rotation", "zoom", "smooth")
 BORDER = 20  # pixels left out of the EPE on every side
 
 
@@ -109,34 +111,29 @@ def evaluate(image: np.ndarray) -> dict[str, dict[str, float]]:
     return results
 
 
-def table(results: dict[str, dict[str, float]]) -> str:
-    m = machine_info()
-    lines = [
-        "# Optical flow against ground truth: average endpoint error (pixels, lower is better)",
-        "",
-        "`python -m edr.flow_accuracy`: pairs made by warping matplotlib's `grace_hopper.jpg`",
-        "(gray, 320x240) with known flows: translation (2.3, -1.4) px, rotation 2 degrees about the",
-        "centre, zoom 3 %, a smooth random field (Gaussian-smoothed noise, sigma 25 px, at most",
-        f"3 px). EPE over the image less a {BORDER}-pixel border; each method with its defaults as",
-        "`representation=...` runs it (speed: `edr-bench`, Table 2's speed rows).",
-        f"Machine: {m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'}; "
-        f"measured {time.strftime('%Y-%m-%d')}, git `{git_revision()}`.",
-        "",
-        "| Method | " + " | ".join(KINDS) + " |",
-        "|---|" + "---:|" * len(KINDS),
-    ]
-    for name, by_kind in results.items():
-        lines.append(f"| {name} | " + " | ".join(f"{by_kind[k]:.3f}" for k in KINDS) + " |")
-    return "\n".join([*lines, ""])
-
-
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m edr.flow_accuracy", description=__doc__)
-    parser.add_argument("--out", type=Path, default=Path("paper/flow_accuracy.md"))
+    parser = argparse.ArgumentParser(
+        prog="python -m edr.flow_accuracy",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument(
+        "--out-dir", type=Path, default=Path("results/bench"), help="where the record is written"
+    )
     args = parser.parse_args(argv)
-    text = table(evaluate(sample_image()))
-    write_text_atomic(args.out, text)
-    print(text)
+    stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
+    record = {
+        "kind": "flow_accuracy",
+        "measured_at": stamp,
+        "git": git_revision(),
+        "machine": machine,
+        "border": BORDER,
+        "epe": evaluate(sample_image()),
+    }
+    path = write_json_atomic(
+        args.out_dir / f"flow_accuracy_{machine['hostname']}_{stamp}.json", record
+    )
+    print(flow_accuracy_table(record, str(path)))
 
 
 if __name__ == "__main__":

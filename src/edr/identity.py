@@ -1,7 +1,8 @@
-"""What makes two runs the same run: the fingerprint of the config, minus what cannot change a
-result (where files go, threads, loggers, resume flags). A sweep maps each cell to a folder named
-from the job's own overrides, minus the same keys, so that the same command finds the same
-folders again.
+"""What makes two runs the same run: the fingerprint of what the task receives (its resolved
+node) and the seed, minus what cannot change a result (where files go, threads, loggers, resume
+flags). A group the task does not read (``optimizer`` for Atari) is not part of it. A sweep maps
+each cell to a folder named from the job's own overrides, minus the same keys, so that the same
+command finds the same folders again.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import logging
 import re
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -31,7 +33,13 @@ NON_SEMANTIC = frozenset(
 )
 # Whole sections that never change a result.
 NON_SEMANTIC_SECTIONS = frozenset({"hydra", "paths"})
+# The top-level keys a run's result depends on: the task gets everything else it reads (a
+# representation, a backbone, an optimizer) through interpolations into its own node.
+IDENTITY_KEYS = ("seed", "task")
+# Groups whose files write into another section (``# @package representation``).
+PACKAGED_INTO = {"ablation": "representation"}
 MAX_DIRNAME = 120  # longer job folder names end in a digest
+log = logging.getLogger(__name__)
 
 
 def semantic_config(config: Mapping[str, Any]) -> dict[str, Any]:
@@ -53,14 +61,44 @@ def digest(payload: Any, length: int = 16) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:length]
 
 
+def _identity_config(cfg: DictConfig) -> dict[str, Any]:
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    return semantic_config({k: resolved.get(k) for k in IDENTITY_KEYS})
+
+
 def run_identity(cfg: DictConfig) -> tuple[dict[str, Any], str, str]:
-    """(semantic config, fingerprint, cell): the cell is the fingerprint with the seed taken out
-    everywhere it is used (``${seed}`` interpolations too), so seeds of one cell share it."""
-    semantic = semantic_config(OmegaConf.to_container(cfg, resolve=True))
+    """(semantic config, fingerprint, cell): the seed and the task's resolved node, minus what
+    cannot change a result; the cell is the fingerprint with the seed taken out everywhere it is
+    used (``${seed}`` interpolations too), so seeds of one cell share it."""
+    semantic = _identity_config(cfg)
     unseeded = copy.deepcopy(cfg)
     unseeded.seed = None
-    cell = semantic_config(OmegaConf.to_container(unseeded, resolve=True))
-    return semantic, digest(semantic), digest(cell)
+    return semantic, digest(semantic), digest(_identity_config(unseeded))
+
+
+def sections_read(task: DictConfig) -> set[str]:
+    """The top-level sections (``representation``, ``backbone``, ...) that the task's node
+    reads through an interpolation such as ``${representation}``."""
+    text = OmegaConf.to_yaml(task, resolve=False)
+    return set(re.findall(r"\$\{([A-Za-z_]\w*)", text))
+
+
+def ignored_overrides(cfg: DictConfig, overrides: Iterable[str]) -> list[str]:
+    """The overrides that set a top-level section the task does not read (the demo's
+    ``representation=edr_k3``): they change nothing in its result."""
+    read = sections_read(cfg.task) | set(IDENTITY_KEYS)
+
+    def section(override: str) -> str:
+        first = override_key(override).split(".")[0]
+        return PACKAGED_INTO.get(first, first)
+
+    return [
+        o
+        for o in overrides
+        if is_semantic_override(o)
+        and section(o) not in read
+        and isinstance(cfg.get(section(o)), DictConfig)
+    ]
 
 
 def flatten(node: Any, prefix: str = "") -> dict[str, Any]:
@@ -102,3 +140,15 @@ def job_dirname(overrides: Iterable[str]) -> str:
     if len(name) > MAX_DIRNAME:
         name = f"{name[: MAX_DIRNAME - 17]}_{digest(name)}"
     return name
+
+
+def warn_ignored(cfg: DictConfig, overrides: Iterable[str]) -> None:
+    """Log a warning naming the overrides the task does not read, and what it reads instead."""
+    if ignored := ignored_overrides(cfg, overrides):
+        read = sorted(sections_read(cfg.task) - set(IDENTITY_KEYS)) or ["none"]
+        log.warning(
+            "warning: %s: not read by this task (it reads the task.* keys and these sections: %s), "
+            "so they change nothing in its results",
+            " ".join(ignored),
+            ", ".join(read),
+        )

@@ -23,22 +23,39 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
+from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from edr.identity import job_dirname, run_identity
+from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.records import check_flat, git_revision, machine_info, now, write_record
+from edr.report.published import load_published, lookup
 from edr.store import Resume, log_attempt, plan_attempt
 from edr.validate import ConfigError, PositiveInt, check_config
 
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # ships in the package; ./conf links here
 # The entry point's own keys, checked like a task's arguments.
+INTERNAL_GROUPS = {"hydra", "recognition", "paths"}  # composed by the configs, not picked by users
 ENTRY_KEYS = {"seed": int, "threads": PositiveInt | None, "resume": Resume, "scale": str}
 log = logging.getLogger(__name__)
 
 OmegaConf.register_new_resolver("edr.abspath", lambda p: str(Path(p).expanduser().resolve()))
 OmegaConf.register_new_resolver("edr.job_dir", lambda overrides: job_dirname(overrides))
 OmegaConf.register_new_resolver("edr.first", lambda *choices: next(c for c in choices if c))
+OmegaConf.register_new_resolver("edr.groups", lambda: user_groups(Path(CONF_DIR)))
+
+
+def user_groups(conf_dir: Path) -> str:
+    """``group: option, option`` per line for the groups a user picks from (not Hydra's own,
+    not the shared recognition base, not the per-task parts of ``debug``)."""
+    lines = []
+    for group in sorted(p for p in conf_dir.iterdir() if p.is_dir()):
+        if group.name in INTERNAL_GROUPS:
+            continue
+        parts = group.name == "debug"  # debug/tiny_<task>.yaml: selected with debug=tiny
+        options = sorted(f.stem for f in group.glob("*.yaml") if not (parts and "_" in f.stem))
+        lines.append(f"  {group.name}: {', '.join(options)}")
+    return "\n".join(lines)
 
 
 def seed_everything(seed: int) -> None:
@@ -64,6 +81,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     """
     # ---- checks and the plan -----------------------------------------------------------------
     check_config(cfg, entry=ENTRY_KEYS)
+    choices, overrides = _hydra_context()
+    if not _in_sweep():  # a sweep says it once, before its first job (SweepSummary)
+        warn_ignored(cfg, overrides)
     out_dir = Path(cfg.out_dir)
     semantic, fingerprint, cell = run_identity(cfg)
     plan = plan_attempt(out_dir, fingerprint, semantic, cfg.resume)
@@ -88,7 +108,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         log.info("%s: resuming from its checkpoint", out_dir)
 
     # ---- the record, then the task -----------------------------------------------------------
-    choices, overrides = _hydra_context()
     previous = plan.record or {}
     record: dict[str, Any] = {
         "status": "running",
@@ -135,7 +154,39 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     )
     write_record(out_dir, record)
     log_attempt(out_dir, "resumed" if plan.action == "resume" else "ran", fingerprint)
+    log.info("%s", summary_line(record, out_dir))
     return record["metrics"]
+
+
+def headline(metrics: dict[str, Any]) -> str:
+    """The one result a reader looks for first, with what chance or random play would score."""
+    if "eval/accuracy" in metrics:
+        chance = metrics.get("eval/chance")
+        against = f" (chance {100 * chance:.1f} %)" if chance is not None else ""
+        return f"accuracy {100 * metrics['eval/accuracy']:.1f} %{against}"
+    if "eval/mean" in metrics:
+        game = metrics.get("data/game")
+        random_play = lookup(load_published(), "atari_reference_scores", game, "random")
+        against = f", random play {random_play:+g}" if random_play is not None else ""
+        return (
+            f"mean score {metrics['eval/mean']:+.1f} over {metrics['eval/plays']} games "
+            f"(min {metrics['eval/min']:+g}, max {metrics['eval/max']:+g}{against})"
+        )
+    rates = {k.split("/")[0]: v for k, v in metrics.items() if k.endswith("/events_per_s")}
+    if rates:
+        return "events/s " + ", ".join(f"{name} {rate:.3g}" for name, rate in rates.items())
+    return f"{len(metrics)} metrics"
+
+
+def summary_line(record: dict[str, Any], out_dir: Path) -> str:
+    """``kth #3 finished: accuracy 56.7 % (chance 16.7 %) · results/...``: the end of a run."""
+    job = f" #{HydraConfig.get().job.num}" if _in_sweep() else ""
+    found = headline({**record["metrics"], **{f"data/{k}": v for k, v in record["data"].items()}})
+    return f"{record['task']}{job} finished: {found} · {out_dir}"
+
+
+def _in_sweep() -> bool:
+    return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")

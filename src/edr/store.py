@@ -25,7 +25,7 @@ from typing import Any, Literal
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from edr.identity import config_diff, flatten
+from edr.identity import config_diff, flatten, warn_ignored
 from edr.records import RECORD_NAME, now, read_record
 from edr.tasks.checkpoints import CHECKPOINT
 from edr.validate import ConfigError
@@ -125,6 +125,7 @@ class SweepSummary(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self.started = time.time()
+        warn_ignored(config, config.hydra.overrides.task)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)

@@ -30,6 +30,7 @@ from edr.report.figures import (
     fig11_activation_sparsity,
     write_figure,
 )
+from edr.report.flow_accuracy import flow_accuracy_table
 from edr.report.published import PUBLISHED, load_published
 from edr.report.recognition import ablation_edr, appendix_a_dvs, table2_ucf101, table4_kth
 from edr.report.render import write_table
@@ -53,6 +54,7 @@ def render_all(
     published = load_published(published_path)
     speed = _bench_records(bench_dir, "speed")
     atari_costs = _bench_records(bench_dir, "atari")
+    flow_accuracy = _bench_records(bench_dir, "flow_accuracy")
     written: dict[str, list[Path]] = {}
     tables = [
         features_table(),
@@ -69,11 +71,19 @@ def render_all(
     if speed:
         path, record = speed[-1]
         written["table2_speed"] = [
-            write_text_atomic(out_dir / "table2_speed.md", speed_table(record, str(path)))
+            write_text_atomic(
+                out_dir / "table2_speed.md",
+                speed_table(record, published.get("speed", {}), str(path)),
+            )
         ]
     if atari_costs:
         written["atari_edr_cost"] = [
             write_text_atomic(out_dir / "atari_edr_cost.md", atari_cost_table(atari_costs))
+        ]
+    if flow_accuracy:
+        path, record = flow_accuracy[-1]
+        written["flow_accuracy"] = [
+            write_text_atomic(out_dir / "flow_accuracy.md", flow_accuracy_table(record, str(path)))
         ]
     figures = {
         "figure5_atari_curves": (
@@ -105,20 +115,25 @@ def render_all(
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="edr-tables", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="edr-tables",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     parser.add_argument(
         "--runs",
         type=Path,
         action="append",
         help="a folder of run records (repeatable; default: results/)",
     )
-    parser.add_argument("--bench", type=Path, help="edr-bench records (default: results/bench)")
+    parser.add_argument(
+        "--bench", type=Path, default=Path("results/bench"), help="edr-bench records"
+    )
     parser.add_argument("--out", type=Path, default=Path("paper"), help="where tables go")
     parser.add_argument("--published", type=Path, default=PUBLISHED, help="published numbers")
     args = parser.parse_args(argv)
     roots = args.runs or [Path("results")]
-    bench = args.bench or (roots[0] / "bench")
-    written = render_all(roots, bench, args.out, args.published)
+    written = render_all(roots, args.bench, args.out, args.published)
     for name, paths in written.items():
         print(f"{name:30s} " + (", ".join(map(str, paths)) if paths else "no records: skipped"))
 

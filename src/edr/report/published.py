@@ -7,7 +7,7 @@ from typing import Any
 
 import yaml
 
-PUBLISHED = Path(__file__).resolve().parents[3] / "paper" / "published.yaml"
+PUBLISHED = Path(__file__).resolve().with_name("published.yaml")  # ships in the package
 
 
 def load_published(path: Path = PUBLISHED) -> dict[str, Any]:

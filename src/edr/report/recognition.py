@@ -10,7 +10,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.speed import BENCH_ROWS, PUBLISHED_SPEED, bench_fps, ratio_lines
+from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
 from edr.results import cells, finished, unfinished
 
 ACCURACY = "metrics.eval/accuracy"
@@ -123,7 +123,7 @@ def table2_ucf101(
             6,
             "Published (fps)",
             [
-                cite(lookup(PUBLISHED_SPEED, "fps", r), ",.1f")
+                cite(lookup(published, "speed", "fps", r), ",.1f")
                 for r in grouped["choices.representation"]
             ],
         )
@@ -136,7 +136,7 @@ def table2_ucf101(
                 f"{speed['clip']}, {speed['measured_at']}, git `{speed['git']}`. "
                 "Ratios from that one run:",
                 "",
-                *ratio_lines(speed["rows"]),
+                *ratio_lines(speed["rows"], published.get("speed", {})),
             ]
         )
     return Table(

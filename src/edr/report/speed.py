@@ -6,9 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from edr.report.published import cite, load_published, lookup
+from edr.report.published import cite, lookup
 
-PUBLISHED_SPEED = load_published().get("speed", {})
 # Bench row names -> the representation names published.yaml uses.
 PUBLISHED_ROW_NAMES = {"EDR K=1 soft gray": "edr", "Brox flow": "brox"}
 # Config names (representation/) -> the bench row that times them (name, implementation).
@@ -42,8 +41,9 @@ def _ratio(a: float | None, b: float | None, fmt: str) -> str:
     return format(a / b, fmt) if a and b else "n/a"
 
 
-def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
-    """A Markdown table of EDR's speed over GrayDiff's and the flows', from one bench record."""
+def ratio_lines(rows: list[dict[str, Any]], published: dict[str, Any]) -> list[str]:
+    """A Markdown table of EDR's speed over GrayDiff's and the flows', from one bench record,
+    beside the paper's ratios (``published``: the published numbers' ``speed`` section)."""
     edr = bench_fps(rows, "EDR K=1 soft gray", "fused numba kernel")
     edr_k3 = bench_fps(rows, "EDR K=3 soft gray")
     edr_stream = bench_fps(rows, "EDR K=1 soft gray, streaming")
@@ -70,10 +70,10 @@ def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
     return [
         "| Ratio | Ours | Paper |",
         "|---|---:|---:|",
-        f"| EDR K=1 / GrayDiff | {_ratio(edr, gray_diff, '.2f')} | {cite(PUBLISHED_SPEED.get('edr_over_graydiff'))} |",
+        f"| EDR K=1 / GrayDiff | {_ratio(edr, gray_diff, '.2f')} | {cite(published.get('edr_over_graydiff'))} |",
         f"| EDR K=1 streaming (per frame) / GrayDiff (per clip) | {_ratio(edr_stream, gray_diff, '.2f')} | — |",
         f"| EDR K=3 / GrayDiff | {_ratio(edr_k3, gray_diff, '.2f')} | — |",
-        f"| EDR K=1 / Brox | {_ratio(edr, brox, ',.0f')}x | {cite(PUBLISHED_SPEED.get('edr_over_optical_flow'))} |",
+        f"| EDR K=1 / Brox | {_ratio(edr, brox, ',.0f')}x | {cite(published.get('edr_over_optical_flow'))} |",
         f"| EDR K=1 / TV-L1 | {_ratio(edr, tvl1, ',.0f')}x | — |",
         f"| EDR K=1 / Farneback | {_ratio(edr, farneback, ',.0f')}x | — |",
         f"| EDR K=1, busy neighbour: all threads / 1 thread | {_ratio(busy_all, busy_one, '.2f')} | — |",
@@ -82,8 +82,9 @@ def ratio_lines(rows: list[dict[str, Any]]) -> list[str]:
     ]
 
 
-def speed_table(record: dict[str, Any], source: str = "") -> str:
-    """Markdown for the speed column of Table 2 from one ``edr-bench`` record."""
+def speed_table(record: dict[str, Any], published: dict[str, Any], source: str = "") -> str:
+    """Markdown for the speed column of Table 2 from one ``edr-bench`` record, beside the
+    paper's figures (``published``: the published numbers' ``speed`` section)."""
     m = record["machine"]
     rows = record["rows"]
     lines = [
@@ -108,20 +109,20 @@ def speed_table(record: dict[str, Any], source: str = "") -> str:
         "|---|---|---|---:|---:|---:|",
     ]
     for r in rows:
-        published = (
-            lookup(PUBLISHED_SPEED, "fps", PUBLISHED_ROW_NAMES.get(r["name"], ""))
+        paper = (
+            lookup(published, "fps", PUBLISHED_ROW_NAMES.get(r["name"], ""))
             if "torch" not in r["implementation"]
             else None
         )
         lines.append(
             f"| {r['name']} | {r['implementation']} | {r['frame_size']} | {r['frames']} | "
-            f"{r['fps']:,.1f} | {f'{published:,.1f}' if published else '—'} |"
+            f"{r['fps']:,.1f} | {f'{paper:,.1f}' if paper else '—'} |"
         )
     lines += [
         "",
         "Ratios, ours from this one run (GrayDiff = its fastest implementation here):",
         "",
-        *ratio_lines(rows),
+        *ratio_lines(rows, published),
         "",
     ]
     return "\n".join(lines)
