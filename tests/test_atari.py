@@ -70,9 +70,9 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     monkeypatch.setattr(atari, "n_step_returns", dies_in_update_65)
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
-    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["frames"] == 1280
+    assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["env_steps"] == 1280
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
-    assert evaluated["train/frames"] == 1280 and evaluated["eval/plays"] == 1
+    assert evaluated["train/env_steps"] == 1280 and evaluated["eval/plays"] == 1
     assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
     (tmp_path / "bare").mkdir()
     (tmp_path / "bare" / "run.json").write_text((tmp_path / "run.json").read_text())
@@ -86,7 +86,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert (
         record["data"]["source"] == "emulator" and "pong.bin md5" in record["data"]["fingerprint"]
     )
-    assert metrics["train/frames"] == 2000
+    assert metrics["train/env_steps"] == 2000
     for key in ("train/loss_actor", "train/loss_critic", "train/entropy"):
         assert np.isfinite(metrics[key])
     assert (
@@ -96,7 +96,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     history = json.loads((tmp_path / "history.json").read_text())
     # a row per 10 updates, one for the 4 updates before the interrupt, one at the end; none twice
     rows = [*range(200, 1201, 200), 1280, *range(1480, 1881, 200), 2000]
-    assert [row["frames"] for row in history] == rows
+    assert [row["env_steps"] for row in history] == rows
     steps = [
         line.split(",")[0] for line in (tmp_path / "logs/scalars/train/fps.csv").read_text().split()
     ]
@@ -106,11 +106,61 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert sum(p.numel() for p in network.parameters()) > 0
 
     # a finished run trains on from its last checkpoint to a raised budget, and not to a lower one
-    extended = run(compose_config(*overrides, f"out_dir={tmp_path}", "task.total_frames=2400"))
+    extended = run(compose_config(*overrides, f"out_dir={tmp_path}", "task.env_steps=2400"))
     record = json.loads((tmp_path / "run.json").read_text())
-    assert record["extended"] == ["task.total_frames: 2000 -> 2400"] and record["resumed"]
-    assert extended["train/frames"] == 2400 and record["metrics"] == extended
+    assert record["extended"] == ["task.env_steps: 2000 -> 2400"] and record["resumed"]
+    assert extended["train/env_steps"] == 2400 and record["metrics"] == extended
     history = json.loads((tmp_path / "history.json").read_text())
-    assert [row["frames"] for row in history] == [*rows, 2200, 2400]
-    with pytest.raises(ConfigError, match=r"task\.total_frames: 2400 -> 2000"):
+    assert [row["env_steps"] for row in history] == [*rows, 2200, 2400]
+    with pytest.raises(ConfigError, match=r"task\.env_steps: 2400 -> 2000"):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
+
+
+def test_config_defaults_are_the_settings_defaults(compose_config) -> None:
+    """conf/task/atari.yaml repeats edr.rl.settings' defaults and train_paac's; they agree."""
+    import inspect
+
+    from hydra.utils import instantiate
+
+    cfg = compose_config("task=atari")
+    defaults = {
+        name: p.default for name, p in inspect.signature(atari.train_paac).parameters.items()
+    }
+    for section in ("env", "network", "loss", "optim", "evaluation"):
+        built = instantiate(cfg.task[section])
+        expected = defaults[section]
+        if section == "env":  # the EDR layer comes from the representation group
+            expected = type(expected)(edr=built.edr)
+        assert built == expected, section
+    for key in ("env_steps", "checkpoint_every", "log_every", "logger"):
+        assert cfg.task[key] == defaults[key], key
+
+
+def test_groups_atari_does_not_read_leave_its_fingerprint_alone(compose_config) -> None:
+    from edr.identity import ignored_overrides, run_identity
+
+    base = run_identity(compose_config("task=atari"))[1]
+    assert run_identity(compose_config("task=atari", "optimizer=adam"))[1] == base
+    assert run_identity(compose_config("task=atari", "backbone=nin_lrcn"))[1] == base
+    assert run_identity(compose_config("task=atari", "representation.beta=2"))[1] != base
+    cfg = compose_config("task=atari", "optimizer=adam")
+    assert ignored_overrides(cfg, ["optimizer=adam", "representation.beta=2"]) == ["optimizer=adam"]
+
+
+@pytest.mark.slow
+def test_the_readmes_own_game_command_runs(cli, tmp_path) -> None:
+    """A gymnasium env of your own, as the README writes it (the catching game of the tests)."""
+    from pathlib import Path
+
+    own = ("task=atari", "task.env.preset=none", "task.env.env_id=EdrCatch-v0", "debug=tiny")
+    tests = str(Path(__file__).parent)
+    result = cli("edr-run", *own, "task.env.env_module=catch_game", cwd=tmp_path,
+                 env={"PYTHONPATH": tests})  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    (record,) = (tmp_path / "results" / "runs" / "atari").glob("*/run.json")
+    assert json.loads(record.read_text())["data"]["source"] == "gymnasium"
+    missing = cli("edr-run", *own, "task.env.env_module=no_such_games", cwd=tmp_path)
+    assert missing.returncode == 2 and "Traceback" not in missing.stderr
+    (line,) = [x for x in (missing.stdout + missing.stderr).splitlines() if "no_such" in x]
+    assert "task.env.env_module='no_such_games': expected a module" in line
+    assert not list((tmp_path / "results" / "runs" / "atari").glob("*no_such_games*/run.json"))

@@ -173,11 +173,11 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
             "status": ["finished"] * 3,
             "fingerprint": ["a", "b", "c"],
             "scale": ["full", "full", "tiny"],
-            "config.task.game": ["Pong"] * 3,
-            "config.task.input": ["fdr_edr"] * 3,
-            "config.task.total_frames": [10_000_000, 80_000_000, 2_000],
+            "config.task.env.game": ["Pong", "Breakout", "Pong"],
+            "config.task.env.inputs": ["fdr_edr"] * 3,
+            "config.task.env_steps": [10_000_000, 80_000_000, 2_000],
         }
     )
     assert atari_runs(runs)["scale"].tolist() == [
-        "full settings, but 10M of the paper's 80M env steps", "full", "tiny",
+        "full settings, but 10M of the paper's 30M env steps", "full", "tiny",
     ]  # fmt: skip

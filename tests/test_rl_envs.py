@@ -20,13 +20,15 @@ def _frame_transform(env) -> ObservationFrame:
 
 
 @pytest.mark.parametrize(
-    ("mode", "num_envs"), [("single", 1), ("serial", 2), ("parallel", 2), ("envpool", 2)]
+    ("backend", "num_envs"), [("single", 1), ("serial", 2), ("parallel", 2), ("envpool", 2)]
 )
-def test_env_specs_hold_with_edr(mode: str, num_envs: int) -> None:
-    env = make_atari_env("Pong", num_envs=num_envs, mode=mode, edr=EDR(color="gray"), frame_stack=2)
+def test_env_specs_hold_with_edr(backend: str, num_envs: int) -> None:
+    env = make_atari_env(
+        "Pong", num_envs=num_envs, backend=backend, edr=EDR(color="gray"), frame_stack=2
+    )
     try:
         check_env_specs(env)
-        batch = () if mode == "single" else (num_envs,)
+        batch = () if backend == "single" else (num_envs,)
         assert env.observation_spec["observation"].shape == (*batch, 2 * (3 + 2), 84, 84)
         assert env.observation_spec["edr"].shape == (*batch, 2, 84, 84)
     finally:
@@ -38,11 +40,11 @@ def test_observation_combinations() -> None:
         ("gray", None, 4, 4),
         ("none", EDR(half_lives=(1, 3.8), color="gray"), 1, 4),
     ):
-        env = make_atari_env("Pong", mode="single", fdr=fdr, edr=edr, frame_stack=stack)
+        env = make_atari_env("Pong", backend="single", fdr=fdr, edr=edr, frame_stack=stack)
         assert env.reset()["observation"].shape == (channels, 84, 84)
         env.close()
     with pytest.raises(ValueError, match="FDR, EDR or both"):
-        make_atari_env("Pong", mode="single", fdr="none", edr=None)
+        make_atari_env("Pong", backend="single", fdr="none", edr=None)
 
 
 def test_presets() -> None:
@@ -56,7 +58,7 @@ def test_presets() -> None:
 
 
 def test_transform_equals_edr_step_on_the_same_frames() -> None:
-    env = make_atari_env("Pong", mode="single", fdr="none", edr=EDR(color="gray"))
+    env = make_atari_env("Pong", backend="single", fdr="none", edr=EDR(color="gray"))
     env.set_seed(0)
     rollout = env.rollout(25, break_when_any_done=False)
     env.close()
@@ -71,7 +73,7 @@ def test_transform_equals_edr_step_on_the_same_frames() -> None:
 
 @pytest.mark.parametrize("mode", ["serial", "envpool"])
 def test_partial_reset_restarts_only_that_env(mode: str) -> None:
-    env = make_atari_env("Pong", num_envs=3, mode=mode, fdr="none", edr=EDR(color="gray"))
+    env = make_atari_env("Pong", num_envs=3, backend=mode, fdr="none", edr=EDR(color="gray"))
     env.set_seed(1)
     rollout = env.rollout(6, break_when_any_done=False)
     transform = _frame_transform(env)
@@ -95,7 +97,7 @@ def test_partial_reset_restarts_only_that_env(mode: str) -> None:
 @pytest.mark.parametrize("fdr", ["gray", "rgb"])
 def test_frame_stack_holds_the_last_frames_and_restarts_per_env(fdr: str) -> None:
     edr = EDR(color="gray")
-    env = make_atari_env("Pong", num_envs=3, mode="serial", fdr=fdr, edr=edr, frame_stack=3)
+    env = make_atari_env("Pong", num_envs=3, backend="serial", fdr=fdr, edr=edr, frame_stack=3)
     env.set_seed(2)
     rollout = env.rollout(5, break_when_any_done=False)  # (3 envs, 5 steps)
 
@@ -122,7 +124,7 @@ def test_frame_stack_holds_the_last_frames_and_restarts_per_env(fdr: str) -> Non
 def test_a_stack_ring_gives_the_same_stacks_and_autograd_refuses_an_overwritten_one() -> None:
     stacks, copies = {}, {}
     for ring in (None, 3):
-        env = make_atari_env("Pong", num_envs=2, mode="serial", edr=EDR(color="gray"),
+        env = make_atari_env("Pong", num_envs=2, backend="serial", edr=EDR(color="gray"),
                              frame_stack=2, stack_ring=ring)  # fmt: skip
         env.set_seed(4)
         torch.manual_seed(4)  # the same random actions
@@ -139,7 +141,7 @@ def test_a_stack_ring_gives_the_same_stacks_and_autograd_refuses_an_overwritten_
     torch.testing.assert_close(copies[3], copies[None])  # each step's stack, as it was emitted
     assert len({s.data_ptr() for s in stacks[None]}) == 7  # without a ring: a new one each step
 
-    env = make_atari_env("Pong", num_envs=2, mode="serial", edr=EDR(color="gray"), stack_ring=2)
+    env = make_atari_env("Pong", num_envs=2, backend="serial", edr=EDR(color="gray"), stack_ring=2)
     td = env.reset()
     td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
     weight = torch.ones(1, 5, 1, 1, requires_grad=True)
@@ -157,7 +159,7 @@ def test_float16_observation_is_the_float32_one_rounded() -> None:
     observations = {}
     for dtype in ("float32", "float16"):
         env = make_atari_env(
-            "Pong", mode="single", edr=EDR(color="gray"), frame_stack=2, obs_dtype=dtype
+            "Pong", backend="single", edr=EDR(color="gray"), frame_stack=2, obs_dtype=dtype
         )
         check_env_specs(env)
         env.set_seed(3)
@@ -168,7 +170,7 @@ def test_float16_observation_is_the_float32_one_rounded() -> None:
     assert observations["float16"].dtype == torch.float16
     torch.testing.assert_close(observations["float16"], observations["float32"].half())
     with pytest.raises(ValueError, match="obs_dtype"):
-        make_atari_env("Pong", mode="single", obs_dtype="int8")
+        make_atari_env("Pong", backend="single", obs_dtype="int8")
 
 
 def test_transform_is_not_for_stored_data() -> None:
@@ -197,7 +199,7 @@ def test_envpool_resets_only_the_flagged_env_and_plays_the_paac_preset() -> None
 def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
     monkeypatch.syspath_prepend(str(Path(__file__).parent))
     env = make_atari_env(
-        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, mode="serial",
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
         edr=EDR(color="gray"), frame_stack=2, keep_inputs=False,
     )  # fmt: skip
     rollout = env.rollout(12, break_when_any_done=False)
@@ -206,7 +208,7 @@ def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
     assert set(rollout["next", "reward"].unique().tolist()) <= {-1.0, 0.0, 1.0}
     env.close()
     with pytest.raises(ValueError, match="envpool plays ALE games only"):
-        make_atari_env("EdrCatch-v0", preset="none", module="catch_game", mode="envpool")
+        make_atari_env("EdrCatch-v0", preset="none", module="catch_game", backend="envpool")
     with pytest.raises(ValueError, match="RGB image observations"):
         gym_image_env("CartPole-v1")
 
@@ -230,7 +232,7 @@ def test_one_pass_frame_equals_fdr_and_edr_step_by_torch(mode: str, fdr: str, ed
         env = make_atari_env(
             "Pong",
             num_envs=2,
-            mode=mode,
+            backend=mode,
             fdr=fdr,
             edr=None if edr is None else EDR(**edr, fast=fast),
         )

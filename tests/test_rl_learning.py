@@ -14,6 +14,7 @@ from edr.rl.envs import make_atari_env
 from edr.rl.optim import TFRMSprop, make_optimizer
 from edr.rl.paac import PAACNetwork
 from edr.rl.rollout import Actor
+from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings, OptimSettings
 from edr.tasks.atari import train_paac
 from edr.validate import ConfigError
 
@@ -56,7 +57,7 @@ def test_torch_rmsprop_is_not_tf_rmsprop_at_paac_settings() -> None:
 def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes(monkeypatch) -> None:
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
     env = make_atari_env(
-        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, mode="serial",
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
         edr=EDR(color="gray"), frame_stack=2, keep_inputs=False,
     )  # fmt: skip
     env.append_transform(InitTracker())
@@ -84,7 +85,7 @@ def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes(mon
 def test_play_scores_one_whole_game_per_env_at_once(monkeypatch) -> None:
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
     env = make_atari_env(
-        "EdrCatch-v0", preset="none", module="catch_game", num_envs=3, mode="serial",
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=3, backend="serial",
         edr=EDR(color="gray"), keep_inputs=False,
     )  # fmt: skip
     env.append_transform(InitTracker())
@@ -129,17 +130,17 @@ def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -
     metrics = train_paac(
         out_dir=tmp_path,
         seed=0,
-        env_id="EdrCatch-v0",
-        env_module="catch_game",
-        preset="none",
-        backend="serial",
-        core=core,
-        edr=EDR(color="gray"),
-        num_envs=16,
-        total_frames=40_000,
-        lr_decay_frames=10**9,
-        eval_plays=20,
-        eval_max_steps=100,
+        env=EnvSettings(
+            env_id="EdrCatch-v0",
+            env_module="catch_game",
+            preset="none",
+            edr=EDR(color="gray"),
+            num_envs=16,
+        ),
+        network=NetworkSettings(core=core),
+        optim=OptimSettings(lr_decay_env_steps=10**9),
+        evaluation=EvalSettings(plays=20, max_steps=100),
+        env_steps=40_000,
         checkpoint_every=10**6,
         logger=None,
     )
@@ -153,9 +154,9 @@ def test_an_input_that_needs_edr_refuses_another_representation(tmp_path) -> Non
     from edr.representations import FDR
 
     with pytest.raises(ConfigError, match="representation=edr"):
-        train_paac(out_dir=tmp_path, seed=0, input="fdr_edr", edr=FDR(), backend="serial")
-    with pytest.raises(ConfigError, match=r"task\.env_id"):
-        train_paac(out_dir=tmp_path, seed=0, env_id="EdrCatch-v0", edr=EDR(color="gray"))
+        train_paac(out_dir=tmp_path, seed=0, env=EnvSettings(inputs="fdr_edr", edr=FDR()))
+    with pytest.raises(ConfigError, match=r"task\.env\.env_id"):
+        train_paac(out_dir=tmp_path, seed=0, env=EnvSettings(env_id="X-v0", edr=EDR(color="gray")))
 
 
 def test_frames_conv_equals_the_convolution_of_the_stack() -> None:
@@ -186,7 +187,7 @@ def test_actor_stacks_frames_as_the_env_would_across_restarts(monkeypatch) -> No
 
     def env(frame_stack: int):
         made = make_atari_env(
-            "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, mode="serial",
+            "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
             edr=EDR(color="gray"), frame_stack=frame_stack, keep_inputs=False, stack_ring=44,
         )  # fmt: skip
         made.append_transform(InitTracker())

@@ -227,30 +227,35 @@ BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl Pa
 
 
 def training_throughput(
-    game: str, num_envs: int, backend: str, frames: int, input: str = "fdr_edr"
+    game: str, num_envs: int, backend: str, env_steps: int, inputs: str = "fdr_edr"
 ) -> tuple[float, float]:
-    """Env steps/s of ``task=atari``'s training loop (``input``: FDR RGB + EDR gray or FDR RGB,
-    its defaults otherwise) over ``frames`` env steps: from the first rollout on, as its progress
+    """Env steps/s of ``task=atari``'s training loop (``inputs``: FDR RGB + EDR gray or FDR RGB,
+    its defaults otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
     bar shows them, and steady (from a quarter of the way on, after the first updates compiled
     the EDR kernels and warmed the allocator: what a run of hours sees)."""
+    from edr.rl.settings import EnvSettings, EvalSettings
     from edr.tasks.atari import HISTORY, train_paac
 
     with tempfile.TemporaryDirectory() as out_dir:
+        env = EnvSettings(
+            game=game, backend=backend, num_envs=num_envs, inputs=inputs,
+            edr=EDR(color="gray") if inputs != "fdr" else None,
+        )  # fmt: skip
         metrics = train_paac(
-            out_dir=Path(out_dir), seed=0, game=game, backend=backend, num_envs=num_envs,
-            input=input, edr=EDR(color="gray") if input != "fdr" else None, total_frames=frames,
-            eval_plays=1, eval_max_steps=1, checkpoint_every=10**9, logger=None,
+            out_dir=Path(out_dir), seed=0, env=env, env_steps=env_steps,
+            evaluation=EvalSettings(plays=1, max_steps=1), checkpoint_every=10**9, logger=None,
         )  # fmt: skip
         history = json.loads((Path(out_dir) / HISTORY).read_text())
     fps = float(metrics["train/fps"])
     if len(history) < 2:
         return fps, fps
-    # each row's fps is cumulative from the first rollout: its elapsed time is frames / fps
-    elapsed = [row["frames"] / row["train/fps"] for row in history]
+    # each row's fps is cumulative from the first rollout: its elapsed time is env steps / fps
+    elapsed = [row["env_steps"] / row["train/fps"] for row in history]
     warm = min(
-        len(history) - 2, next(i for i, r in enumerate(history) if r["frames"] >= frames / 4)
+        len(history) - 2,
+        next(i for i, r in enumerate(history) if r["env_steps"] >= env_steps / 4),
     )
-    steady = (history[-1]["frames"] - history[warm]["frames"]) / (elapsed[-1] - elapsed[warm])
+    steady = (history[-1]["env_steps"] - history[warm]["env_steps"]) / (elapsed[-1] - elapsed[warm])
     return fps, steady
 
 
@@ -275,7 +280,7 @@ def atari_throughput(
         make_atari_env(
             game,
             num_envs=num_envs,
-            mode=backend,
+            backend=backend,
             edr=edr,
             frame_stack=frame_stack,
             obs_dtype=obs_dtype,
@@ -384,11 +389,11 @@ def main(argv: list[str] | None = None) -> None:
                 args.obs_dtype, backend,
             )  # fmt: skip
             training = {}  # train_fps(_steady): FDR + EDR, as before; train_fps_fdr(_steady): FDR
-            for input, key in (("fdr", "train_fps_fdr"), ("fdr_edr", "train_fps")):
+            for inputs, key in (("fdr", "train_fps_fdr"), ("fdr_edr", "train_fps")):
                 fps = (None, None)
                 if args.train_frames:
                     fps = training_throughput(
-                        args.game, args.atari, backend, args.train_frames, input
+                        args.game, args.atari, backend, args.train_frames, inputs
                     )
                 training[key], training[f"{key}_steady"] = fps
             record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,

@@ -33,8 +33,9 @@ from edr.validate import ConfigError
 ATTEMPTS = "attempts.jsonl"
 Resume = Literal["auto", True, False]
 # Budgets a run may be raised to and continued: the training up to the old budget does not
-# depend on them (Atari's learning rate follows task.lr_decay_frames, not task.total_frames).
-EXTENDABLE = frozenset({"task.total_frames"})
+# depend on them (Atari's learning rate follows task.optim.lr_decay_env_steps, not
+# task.env_steps).
+EXTENDABLE = frozenset({"task.env_steps"})
 log = logging.getLogger(__name__)
 
 

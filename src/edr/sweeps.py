@@ -13,11 +13,11 @@ import sys
 from pathlib import Path
 
 # 100 agent steps per env: a lost life ends a training episode here, so Breakout has scores.
-ATARI_TINY = ("task.total_frames=400", "task.lr_decay_frames=400", "task.eval_max_steps=50",
-              "task.life_loss=true")  # fmt: skip
+ATARI_TINY = ("task.env_steps=400", "task.optim.lr_decay_env_steps=400",
+              "task.evaluation.max_steps=50", "task.env.life_loss=true")  # fmt: skip
 LTC_TINY = ("backbone.widths=[4,4,4,4,4]", "backbone.fc=16")
 TINY_SWEEPS = {
-    "table1": ("experiment=table1_atari", "game=pong,breakout", "task.input=fdr,fdr_edr",
+    "table1": ("experiment=table1_atari", "game=pong,breakout", "task.env.inputs=fdr,fdr_edr",
                "seed=0,1", *ATARI_TINY),
     "table2": ("experiment=table2_ucf101", "representation=fdr,graydiff,edr", "seed=0", *LTC_TINY),
     "table3": ("task=event_camera", "seed=0,1"),

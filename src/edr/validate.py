@@ -5,6 +5,7 @@ and choices included. Each failure is one line naming the key and what was expec
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import inspect
 import math
@@ -74,6 +75,20 @@ def _logger_problem(name: Any) -> str | None:
 
 
 LoggerName = Annotated[str, Check(_logger_problem)]
+
+
+def _module_problem(name: Any) -> str | None:
+    try:
+        found = importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):  # a parent package that does not exist, an empty name
+        found = False
+    return None if found else (
+        "a module on this Python's path: no such module (install the package that holds it, "
+        "or add its folder to PYTHONPATH)"
+    )  # fmt: skip
+
+
+ModuleName = Annotated[str, Check(_module_problem)]  # importable (not imported by the check)
 
 
 def _plain(value: Any) -> Any:
@@ -154,7 +169,14 @@ def mismatch(value: Any, hint: Any) -> str | None:
 
 
 def _hints(target: Any) -> dict[str, Any]:
-    function = target.__init__ if inspect.isclass(target) else target
+    # a dataclass's fields resolve in its module (its generated __init__ has no globals of use)
+    function = (
+        target
+        if dataclasses.is_dataclass(target)
+        else target.__init__
+        if inspect.isclass(target)
+        else target
+    )
     try:
         return typing.get_type_hints(function, include_extras=True)
     except Exception:  # a third-party target whose annotations do not resolve: not ours to check

@@ -12,12 +12,12 @@ import pandas as pd
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
 from edr.results import cells, finished, unfinished
+from edr.rl.settings import INPUT_NAMES
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
-INPUTS = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}
-
-
-PAPER_ENV_STEPS = 80_000_000  # Table 1's budget per game (``task.total_frames``'s default)
+# Table 1's budget per game in env steps (Appendix C: Pong stops at 30M, the other games at 80M)
+PAPER_ENV_STEPS = {"Pong": 30_000_000}
+PAPER_ENV_STEPS_OTHERWISE = 80_000_000
 
 
 def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
@@ -26,13 +26,14 @@ def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
     done = finished(runs, "atari").copy()
     if done.empty:
         return done.assign(game=[], input=[])
-    done["game"] = done["config.task.game"]
-    done["input"] = done["config.task.input"]
-    budget = pd.to_numeric(done.get("config.task.total_frames"), errors="coerce")
-    cut = (done["scale"] == "full") & (budget < PAPER_ENV_STEPS)
+    done["game"] = done["config.task.env.game"]
+    done["input"] = done["config.task.env.inputs"]
+    budget = pd.to_numeric(done.get("config.task.env_steps"), errors="coerce")
+    paper = done["game"].map(lambda g: PAPER_ENV_STEPS.get(g, PAPER_ENV_STEPS_OTHERWISE))
+    cut = (done["scale"] == "full") & (budget < paper)
     done.loc[cut, "scale"] = [
-        f"full settings, but {steps / 1e6:g}M of the paper's {PAPER_ENV_STEPS / 1e6:g}M env steps"
-        for steps in budget[cut]
+        f"full settings, but {steps / 1e6:g}M of the paper's {full / 1e6:g}M env steps"
+        for steps, full in zip(budget[cut], paper[cut], strict=True)
     ]
     return done
 
@@ -70,7 +71,7 @@ def normalised_scores(done: pd.DataFrame, published: dict[str, Any]) -> dict[str
             scores = np.stack([s[:n] for s in per_game], axis=1)  # (runs, games)
             low = np.array([r["random"] for r in ref])
             high = np.array([r["human"] for r in ref])
-            out[INPUTS.get(name, name)] = (scores - low) / (high - low)
+            out[INPUT_NAMES.get(name, name)] = (scores - low) / (high - low)
     return out
 
 
@@ -107,7 +108,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         frame = pd.DataFrame(
             {
                 "Game": grouped["game"],
-                "Input": [INPUTS.get(i, i) for i in grouped["input"]],
+                "Input": [INPUT_NAMES.get(i, i) for i in grouped["input"]],
                 "Data": grouped["data.source"],
                 "Scale": grouped["scale"],
                 **{

@@ -18,10 +18,11 @@ import numpy as np
 import pandas as pd
 
 from edr.atomic import atomic_path, write_text_atomic
-from edr.report.atari import INPUTS, atari_runs, normalised_scores
+from edr.report.atari import atari_runs, normalised_scores
 from edr.report.recognition import without_ablations
 from edr.report.render import provenance
 from edr.results import CELL_KEYS, finished
+from edr.rl.settings import INPUT_NAMES
 
 Draw = Callable[[], "plt.Figure | None"]
 
@@ -88,9 +89,9 @@ def _curve_panels(
 
 def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     done = atari_runs(runs)
-    done = done.assign(label=[INPUTS.get(i, i) for i in done["input"]])
+    done = done.assign(label=[INPUT_NAMES.get(i, i) for i in done["input"]])
     return done, lambda: _curve_panels(
-        done, "game", ["label"], "frames", "train/score",
+        done, "game", ["label"], "env_steps", "train/score",
         "Figure 5: training score, FDR vs FDR+EDR (a game without a finished episode has no curve)",
         "env steps", "mean score, last 20 episodes",
     )  # fmt: skip

@@ -234,7 +234,7 @@ def make_atari_env(
     game: str = "Pong",
     preset: Preset = "paac",
     num_envs: int = 1,
-    mode: Backend = "parallel",
+    backend: Backend = "parallel",
     train: bool = True,
     life_loss: bool = False,
     module: str | None = None,
@@ -257,23 +257,23 @@ def make_atari_env(
     """
     if fdr == "none" and edr is None:
         raise ValueError("the observation needs FDR, EDR or both")
-    if preset == "none" and mode == "envpool":
+    if preset == "none" and backend == "envpool":
         raise ValueError(
             "backend=envpool plays ALE games only; preset=none needs parallel or serial"
         )
     factory = functools.partial(_torchrl_gym, game, preset, train, life_loss, module)
-    if mode == "single":
+    if backend == "single":
         if num_envs != 1:
-            raise ValueError(f"mode=single runs one env, not {num_envs}")
+            raise ValueError(f"backend=single runs one env, not {num_envs}")
         base: EnvBase = factory()
-    elif mode == "serial":
+    elif backend == "serial":
         base = SerialEnv(num_envs, factory)
-    elif mode == "parallel":
+    elif backend == "parallel":
         base = ParallelEnv(num_envs, factory, mp_start_method="spawn")
-    elif mode == "envpool":
+    elif backend == "envpool":
         base = EnvPoolAtari(game, num_envs, preset, train, life_loss)
     else:
-        raise ValueError(f"backend must be envpool, parallel, serial or single, got {mode!r}")
+        raise ValueError(f"backend must be envpool, parallel, serial or single, got {backend!r}")
     transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"])]
     if preset == "paac" and train:
         transforms.append(SignTransform(in_keys=["reward"]))

@@ -26,6 +26,7 @@ from torch import nn
 from torch.nn import functional
 
 Core = Literal["lstm", "ftlstm", "none"]
+Init = Literal["orthogonal", "fan_in"]
 
 
 class FeatureTrackingLSTMCell(nn.Module):
@@ -76,7 +77,12 @@ class PAACNetwork(nn.Module):
     or n frames (..., C / n, 84, 84), oldest first."""
 
     def __init__(
-        self, in_channels: int, num_actions: int, core: Core = "lstm", hidden: int = 256
+        self,
+        in_channels: int,
+        num_actions: int,
+        core: Core = "lstm",
+        hidden: int = 256,
+        init: Init = "orthogonal",
     ) -> None:
         super().__init__()
         self.trunk = nn.Sequential(
@@ -99,18 +105,28 @@ class PAACNetwork(nn.Module):
             features = hidden
         self.policy = nn.Linear(features, num_actions)
         self.value = nn.Linear(features, 1)
-        self._init_weights()
+        self._init_weights(init)
 
-    def _init_weights(self) -> None:
-        """Orthogonal weights, zero biases (as OpenAI's A2C): gain sqrt(2) before a ReLU, 0.01
-        for the policy (it starts uniform, its logits not a random function of the frame) and
-        1 for the value. The recurrent cells keep their own initialisation."""
+    def _init_weights(self, init: Init) -> None:
+        """``orthogonal``: orthogonal weights, zero biases (as OpenAI's A2C): gain sqrt(2)
+        before a ReLU, 0.01 for the policy (it starts uniform, its logits not a random function
+        of the frame) and 1 for the value. ``fan_in``: weights and biases uniform in
+        +-1/sqrt(fan_in), as PAAC's and the paper's TensorFlow code. The recurrent cells keep
+        their own initialisation."""
         relu_layers = [m for m in (*self.trunk, *getattr(self, "embed", ())) if m._parameters]
         for layer, gain in [*((m, math.sqrt(2)) for m in relu_layers), (self.policy, 0.01),
                             (self.value, 1.0)]:  # fmt: skip
-            with torch.no_grad():  # via a contiguous tensor: the trunk's weights are channels-last
-                layer.weight.copy_(nn.init.orthogonal_(torch.empty(layer.weight.shape), gain))
-                layer.bias.zero_()
+            # via a contiguous tensor: the trunk's weights are channels-last
+            weight, bias = torch.empty(layer.weight.shape), torch.zeros(layer.bias.shape)
+            if init == "orthogonal":
+                nn.init.orthogonal_(weight, gain)
+            else:
+                bound = 1 / math.sqrt(weight[0].numel())  # fan_in: inputs to one unit
+                nn.init.uniform_(weight, -bound, bound)
+                nn.init.uniform_(bias, -bound, bound)
+            with torch.no_grad():
+                layer.weight.copy_(weight)
+                layer.bias.copy_(bias)
 
     def _step(
         self, frames: list[torch.Tensor], h: torch.Tensor, c: torch.Tensor
@@ -142,6 +158,34 @@ class PAACNetwork(nn.Module):
         flat_h, flat_c = h.reshape(-1, h.shape[-1]) * keep, c.reshape(-1, c.shape[-1]) * keep
         out = self._step([f.reshape(-1, *f.shape[-3:]) for f in frames], flat_h, flat_c)
         return tuple(o.reshape(*batch, o.shape[-1]) for o in out)
+
+
+class DeadUnits:
+    """Which units of each ReLU layer of ``network`` output zero on every state it saw since
+    :meth:`reset`: a conv unit is a channel (zero at every location), a linear one a feature.
+    A layer whose units are all dead passes nothing on, and no gradient reaches what feeds it."""
+
+    def __init__(self, network: nn.Module) -> None:
+        self._fired: dict[str, torch.Tensor] = {}  # layer name -> (units,) bool
+        for name, module in network.named_modules():
+            if isinstance(module, nn.ReLU):
+                module.register_forward_hook(self._hook(name))
+
+    def _hook(self, name: str):
+        def record(module: nn.Module, inputs: object, out: torch.Tensor) -> None:
+            # (B, C, H, W) or (B, F): a unit fired if it was positive anywhere in the batch
+            fired = (out.detach() > 0).transpose(0, 1).flatten(1).any(1)
+            seen = self._fired.get(name)
+            self._fired[name] = fired if seen is None else seen | fired
+
+        return record
+
+    def reset(self) -> None:
+        self._fired.clear()
+
+    def fractions(self) -> dict[str, float]:
+        """``{"dead/<layer>": fraction of its units that never fired}`` since the reset."""
+        return {f"dead/{k}": 1.0 - v.float().mean().item() for k, v in self._fired.items()}
 
 
 def n_step_returns(

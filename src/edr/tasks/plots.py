@@ -58,7 +58,7 @@ def save_score_curve(history: Sequence[dict[str, float]], path: Path, title: str
     """Mean score of recent training episodes against env steps (the paper's Figure 5)."""
     scored = [row for row in history if "train/score" in row]
     fig, ax = plt.subplots(figsize=(5, 3))
-    ax.plot([r["frames"] for r in scored], [r["train/score"] for r in scored], "k-")
+    ax.plot([r["env_steps"] for r in scored], [r["train/score"] for r in scored], "k-")
     ax.set(xlabel="env steps", ylabel="mean score (last 20 episodes)", title=title)
     fig.tight_layout()
     with atomic_path(path) as tmp:

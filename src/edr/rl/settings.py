@@ -1,0 +1,96 @@
+"""What a PAAC run is configured by, one dataclass per concern (as ``conf/task/atari.yaml``
+groups it): the envs and what the network sees, the network, the loss, the optimizer and its
+schedule, the evaluation. The defaults here are the only ones in code; the config repeats them
+with a comment each, and a test checks that the two agree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from edr.representations import EDR
+from edr.rl.envs import Backend, Preset
+from edr.rl.optim import OptimizerName
+from edr.rl.paac import Core, Init
+from edr.validate import Fraction, ModuleName, NonNegativeFloat, PositiveFloat, PositiveInt
+
+Inputs = Literal["fdr", "fdr_edr", "edr"]
+INPUT_NAMES: dict[str, str] = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1
+BackendChoice = Backend | Literal["auto"]
+
+
+@dataclass(frozen=True)
+class EnvSettings:
+    """Which game, how its envs are stepped, and what the network sees of them."""
+
+    game: str = "Pong"  # ALE game name
+    env_id: str | None = None  # a gymnasium id to play instead (with preset="none")
+    env_module: ModuleName | None = None  # the module whose import registers env_id
+    preset: Preset = "paac"  # paac: frame skip 4 + max, 30 no-ops; v5: ALE's; none: your env
+    backend: BackendChoice = "auto"  # auto: envpool for ALE games, serial for your own env
+    life_loss: bool = False  # a lost life ends a training episode
+    num_envs: PositiveInt = 32  # envs stepped together (PAAC's 32)
+    inputs: Inputs = "fdr_edr"  # frames, frames + EDR events, or events alone
+    fdr: Literal["rgb", "gray"] = "rgb"  # the frames' colour
+    edr: EDR | None = None  # the EDR layer computed on the fly
+    frame_stack: PositiveInt = 4  # agent steps the network sees at once
+    obs_dtype: Literal["float16", "float32"] = "float32"  # the observation's dtype
+
+    @property
+    def name(self) -> str:
+        """The game's name, or the user's env id."""
+        return self.env_id or self.game
+
+    def resolved_backend(self) -> Backend:
+        """``auto``: EnvPool steps ALE games; a gymnasium env of your own runs serially."""
+        if self.backend != "auto":
+            return self.backend
+        return "serial" if self.preset == "none" else "envpool"
+
+
+@dataclass(frozen=True)
+class NetworkSettings:
+    """The actor-critic network after the conv trunk."""
+
+    core: Core = "ftlstm"  # ftlstm (the paper's), lstm, or none (feed-forward PAAC)
+    init: Init = "orthogonal"  # orthogonal (OpenAI's A2C) or fan_in (PAAC's TensorFlow code)
+
+
+@dataclass(frozen=True)
+class LossSettings:
+    """PAAC's n-step actor-critic loss."""
+
+    rollout_steps: PositiveInt = 5  # steps per env between updates (n of the n-step return)
+    discount: Fraction = 0.99  # the return's discount per agent step
+    scale: PositiveFloat = 5.0  # PAAC multiplies its loss by 5
+    entropy_coeff: NonNegativeFloat = 0.02  # weight of the policy's entropy bonus
+    critic_coeff: NonNegativeFloat = 0.25  # weight of (R - V)^2
+
+
+@dataclass(frozen=True)
+class OptimSettings:
+    """The optimizer, its gradient clip and its learning-rate schedule."""
+
+    name: OptimizerName = "adam"  # adam, or rmsprop_tf (PAAC's TensorFlow RMSprop)
+    lr: PositiveFloat | None = None  # None: the optimizer's default (DEFAULT_LR)
+    lr_decay_env_steps: PositiveInt = 80_000_000  # the learning rate reaches 0 here
+    max_grad_norm: PositiveFloat = 3.0  # L2 clip of the whole gradient
+    rmsprop_decay: Fraction = 0.99  # rmsprop_tf: the mean square's decay
+    rmsprop_eps: PositiveFloat = 0.1  # rmsprop_tf: added inside the square root
+    adam_eps: PositiveFloat = 1e-5  # adam: added to the root of the second moment
+
+    @property
+    def learning_rate(self) -> float:
+        return self.lr or DEFAULT_LR[self.name]
+
+
+DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # ours for Adam; PAAC's for its RMSprop
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """The games scored after training (Table 1: min / max / mean of 30)."""
+
+    plays: PositiveInt = 30  # whole games, played at once on as many envs
+    max_steps: PositiveInt = 27_000  # agent steps at most per game
