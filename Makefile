@@ -8,7 +8,7 @@ WHEELS  := $(wildcard /opt/wheels)
 FIND    := $(if $(WHEELS),--find-links $(WHEELS),)
 TORCH   ?= torch==2.13.0
 
-.PHONY: setup demo paper-tiny test lint bench clean
+.PHONY: setup demo paper-tiny test test-fast lint bench clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -37,6 +37,10 @@ test: setup
 	$(BIN)/ruff check src tests
 	$(BIN)/ruff format --check src tests
 	$(BIN)/python -m pytest -q
+
+# The edit loop: everything but the tests marked slow (over 10 s) and learning (training runs).
+test-fast: setup
+	$(BIN)/python -m pytest -q -m "not slow and not learning"
 
 lint: setup
 	$(BIN)/ruff check --fix src tests

@@ -66,7 +66,12 @@ def test_table1_atari(paper) -> None:
         ("Breakout", "FDR"), ("Breakout", "FDR+EDR"), ("Pong", "FDR"), ("Pong", "FDR+EDR"),
     ]  # fmt: skip
     assert all(r[header.index("Runs")] == "2" for r in rows)  # two seeds per cell
-    assert "Avg. gain of FDR+EDR over FDR" in text and "| +23.8 |" in text  # the published gain
+    assert "Avg. gain of FDR+EDR over FDR" in text
+    assert "| the paper, as printed | +23.8 | +20.9 | +70.2 |" in text
+    assert "| the paper, recomputed from its rows | +23.8 | +20.9 | +70.2 |" in text
+    paper_block = text[text.index("## The paper's numbers") :]
+    assert "| Pong   | FDR+EDR |  19.5 |" in paper_block and "30M" in paper_block
+    assert "repeats Pacman's FDR numbers" in paper_block  # the paper's inconsistency, said
     assert "interquartile mean" in text and "95 % interval" in text
     assert (paper / "table1_atari.tex").read_text().startswith("\\begin{table}")
     for figure in ("figure5_atari_curves", "atari_performance_profile"):
@@ -119,7 +124,7 @@ def test_table3_event_camera(paper) -> None:
     assert all(r[header.index("Runs")] == "2" for r in rows.values())
     sparsity = {name: float(r[header.index("Sparsity")].split(" ")[0]) for name, r in rows.items()}
     assert sparsity["frames"] < 0.5 < sparsity["edr_hard"] and sparsity["dvs"] > 0.5
-    assert "hardware rows" in text
+    assert "## The paper's numbers" in text and "DVS128" in text and "4 Mbps" in text
 
 
 @pytest.mark.slow
@@ -133,6 +138,8 @@ def test_table4_kth(paper) -> None:
     )
     assert all(r[header.index("Runs (seeds)")] == "2 (0, 1)" for r in rows)
     assert "Published (%)" in header and "paper/published.yaml" in text
+    paper_block = text[text.index("## The paper's numbers") :]
+    assert "94.4" in paper_block and "79.3" in paper_block  # always shown, in its own block
     for figure in ("figure10_kth_curves", "figure11_activation_sparsity"):
         assert (paper / "figures" / f"{figure}.png").stat().st_size > 1000
 
@@ -145,6 +152,12 @@ def test_appendix_a_ablations_features_and_the_demo_figure(paper) -> None:
     assert (paper / "figures" / "figure7b_dvs_confusion.png").is_file()
     ablation = (paper / "ablation_edr.md").read_text()
     assert sorted(r[0] for r in _rows(ablation)) == ["hard", "paper", "sum"]
+    # one run asked for by both sweeps serves both tables
+    runs = load_runs([paper.parent / "sweeps"])
+    shared = runs[(runs["choices.ablation"] == "paper") & (runs["seed"] == 0)]["fingerprint"]
+    table4 = runs[(runs["choices.backbone"] == "lenet_ftrcn") & (runs["choices.representation"]
+                  == "edr") & (runs["seed"] == 0) & (runs["task"] == "kth")]["fingerprint"]  # fmt: skip
+    assert set(shared) & set(table4)
     features = {r[0]: r for r in _rows((paper / "figure2b_features.md").read_text())}
     assert features["edr"][1] == "EDR" and features["tvl1"][1] == "TVL1"
     assert "From the code" in (paper / "figure2b_features.md").read_text()

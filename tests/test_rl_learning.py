@@ -120,11 +120,17 @@ def random_score() -> float:
     return _random_catch_score()
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("core", ["none", "lstm", "ftlstm"])
-def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -> None:
-    """Defaults of task=atari (Adam, PAAC's loss, FDR+EDR) but 16 envs: 500 updates of 16 x 5
-    steps, half the env steps 32 envs would need for as many updates."""
+@pytest.mark.learning
+@pytest.mark.parametrize(
+    ("core", "inputs"),
+    [("none", "fdr_edr"), ("lstm", "fdr_edr"), ("ftlstm", "fdr_edr"), ("ftlstm", "fdr")],
+)
+def test_every_core_and_input_learns_to_catch(
+    core, inputs, random_score, tmp_path, monkeypatch
+) -> None:
+    """Defaults of task=atari (its optimizer, PAAC's loss) but 16 envs: 500 updates of 16 x 5
+    steps, half the env steps 32 envs would need for as many updates. Frames alone (FDR) must
+    learn too: the baseline of Table 1."""
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
     torch.manual_seed(0)
     metrics = train_paac(
@@ -134,6 +140,7 @@ def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -
             env_id="EdrCatch-v0",
             env_module="catch_game",
             preset="none",
+            inputs=inputs,
             edr=EDR(color="gray"),
             num_envs=16,
         ),
@@ -147,7 +154,8 @@ def test_every_core_learns_to_catch(core, random_score, tmp_path, monkeypatch) -
     assert metrics["data/source"] == "gymnasium" and metrics["data/game"] == "EdrCatch-v0"
     # random play loses ~2.4 of 4 drops net; a policy that follows the ball wins all 4
     assert random_score < -1.5
-    assert metrics["eval/mean"] > random_score + 2.0, (core, metrics["eval/mean"], random_score)
+    assert metrics["eval/mean"] > random_score + 2.0, (core, inputs, metrics, random_score)
+    assert metrics["dead/trunk.1"] < 0.5  # the first convolution stays alive
 
 
 def test_an_input_that_needs_edr_refuses_another_representation(tmp_path) -> None:

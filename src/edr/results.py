@@ -13,7 +13,7 @@ records are listed, never averaged.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -77,12 +77,20 @@ def load_runs(roots: Iterable[str | Path]) -> pd.DataFrame:
     return frame.reindex(columns=[*BASE_COLUMNS, *(c for c in frame if c not in BASE_COLUMNS)])
 
 
-def finished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
-    """The finished runs of ``task``; of several records of one fingerprint (the same run in two
-    folders), the newest only, so that no run is counted twice."""
+def finished(
+    runs: pd.DataFrame,
+    task: str,
+    select: Callable[[pd.DataFrame], pd.DataFrame] | None = None,
+) -> pd.DataFrame:
+    """The finished runs of ``task`` that a table asked for (``select``: the records its sweep
+    defines); then, of several records of one fingerprint (the same run in two folders, or
+    asked for by two sweeps), the newest only, so that no run is counted twice in one table.
+    Selecting before that keeps a run shared by two tables in both."""
     if runs.empty:
         return runs
     done = runs[(runs["task"] == task) & (runs["status"] == "finished")]
+    if select is not None:
+        done = select(done)
     return done.drop_duplicates("fingerprint", keep="last")
 
 

@@ -66,8 +66,7 @@ def render_all(
         ablation_edr(runs),
     ]
     for table in tables:
-        has_rows = table.from_code or not table.runs.empty
-        written[table.name] = write_table(table, out_dir) if has_rows else []
+        written[table.name] = write_table(table, out_dir, published) if table.has_content else []
     if speed:
         path, record = speed[-1]
         written["table2_speed"] = [

@@ -88,17 +88,36 @@ def _curve_panels(
 
 
 def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    """Per game: the training score (top) and the fraction of the first convolution's units
+    that are dead (bottom), mean and min-max band over seeds, per input."""
     done = atari_runs(runs)
     done = done.assign(label=[INPUT_NAMES.get(i, i) for i in done["input"]])
-    return done, lambda: _curve_panels(
-        done, "game", ["label"], "env_steps", "train/score",
-        "Figure 5: training score, FDR vs FDR+EDR (a game without a finished episode has no curve)",
-        "env steps", "mean score, last 20 episodes",
-    )  # fmt: skip
+
+    def draw() -> plt.Figure | None:
+        games = sorted(done["game"].dropna().unique())
+        fig, axes = plt.subplots(2, len(games), figsize=(4.5 * len(games), 6), squeeze=False)
+        drawn = []
+        for k, game in enumerate(games):
+            runs_of_game = done[done["game"] == game]
+            drawn.append(
+                _draw_curves(axes[0, k], runs_of_game, ["label"], "env_steps", "train/score")
+            )
+            _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/trunk.1")
+            axes[0, k].set(title=game, xlabel="env steps", ylabel="mean score, last 20 episodes")
+            axes[1, k].set(xlabel="env steps", ylabel="conv1 units dead (fraction)",
+                           ylim=(-0.02, 1.02))  # fmt: skip
+        if not any(drawn):
+            plt.close(fig)
+            return None
+        fig.suptitle("Figure 5: training score and dead conv1 units, FDR vs FDR+EDR", fontsize=10)
+        fig.tight_layout()
+        return fig
+
+    return done, draw
 
 
 def fig10_kth_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    done = without_ablations(finished(runs, "kth"))
+    done = finished(runs, "kth", without_ablations)
     return done, lambda: _curve_panels(
         done, "choices.backbone", ["choices.representation", "scale"], "epoch", "eval/accuracy",
         "Figure 10: KTH test accuracy during training", "epoch", "test video accuracy",
@@ -178,7 +197,7 @@ def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
 
 
 def fig11_activation_sparsity(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    done = without_ablations(finished(runs, "kth"))
+    done = finished(runs, "kth", without_ablations)
     return done, lambda: _sparsity(done)
 
 

@@ -36,6 +36,30 @@ class Table:
     unfinished: pd.DataFrame | None = None  # failed, running and legacy records: listed only
     extra: str = ""  # Markdown appended after the rows (a second small table, ratios)
     from_code: bool = False  # declared by the code, not measured: no runs behind it
+    paper: pd.DataFrame = field(default_factory=pd.DataFrame)  # the paper's own rows, as printed
+    paper_notes: list[str] = field(default_factory=list)  # its source and its inconsistencies
+
+    @property
+    def has_content(self) -> bool:
+        return self.from_code or not self.runs.empty or not self.paper.empty
+
+
+def paper_block(table: Table, published: dict) -> list[str]:
+    """The paper's rows under their own heading: its data, scale and machine as it states them;
+    never averaged with ours."""
+    if table.paper.empty:
+        return []
+    stated = published.get("paper", {}) if published else {}
+    return [
+        "",
+        "## The paper's numbers (as published)",
+        "",
+        f"- **Data**: {stated.get('data', 'as the paper states')}; **scale**: the paper's full "
+        f"protocol; **machine**: {stated.get('machine', 'the authors’')}.",
+        *(f"- {n}" for n in table.paper_notes),
+        "",
+        table.paper.to_markdown(index=False),
+    ]
 
 
 def mean_std(mean: float, std: float, scale: float = 1.0, fmt: str = ".1f") -> str:
@@ -67,7 +91,7 @@ def provenance(runs: pd.DataFrame, from_code: bool = False) -> list[str]:
     ]
 
 
-def to_markdown(table: Table) -> str:
+def to_markdown(table: Table, published: dict | None = None) -> str:
     lines = [
         f"# {table.title}",
         "",
@@ -78,6 +102,7 @@ def to_markdown(table: Table) -> str:
     lines.append(table.frame.to_markdown(index=False) if not table.frame.empty else "(no rows)")
     if table.extra:
         lines += ["", table.extra]
+    lines += paper_block(table, published or {})
     lines += ["", "Records:", ""] + [f"- `{r}`" for r in table.runs.get("record", [])]
     if table.unfinished is not None and not table.unfinished.empty:
         lines += ["", "Not averaged (not finished):", ""]
@@ -97,7 +122,8 @@ def _latex_escape(text: str) -> str:
 
 
 def to_latex(table: Table) -> str:
-    """A ``table`` environment; the caption carries the provenance lines."""
+    """A ``table`` environment (and one for the paper's rows); the captions carry the
+    provenance lines."""
     caption = " ".join(
         [
             table.title,
@@ -107,16 +133,25 @@ def to_latex(table: Table) -> str:
             ),
         ]
     )
-    frame = table.frame.map(lambda v: _latex_escape(str(v)))
+    latex = _latex_table(table.frame, caption, f"tab:{table.name}") if not table.frame.empty else ""
+    if not table.paper.empty:
+        paper_caption = " ".join([f"{table.title}: the paper's numbers, as published.",
+                                  *table.paper_notes])  # fmt: skip
+        latex += _latex_table(table.paper, paper_caption, f"tab:{table.name}_paper")
+    return latex
+
+
+def _latex_table(frame: pd.DataFrame, caption: str, label: str) -> str:
+    frame = frame.map(lambda v: _latex_escape(str(v)))
     frame.columns = [_latex_escape(str(c)) for c in frame.columns]
     return frame.style.hide(axis="index").to_latex(
-        caption=_latex_escape(caption), label=f"tab:{table.name}", hrules=True, position="htbp"
+        caption=_latex_escape(caption), label=label, hrules=True, position="htbp"
     )
 
 
-def write_table(table: Table, out_dir: Path) -> list[Path]:
+def write_table(table: Table, out_dir: Path, published: dict | None = None) -> list[Path]:
     """``<out_dir>/<name>.md`` and ``.tex``."""
     return [
-        write_text_atomic(out_dir / f"{table.name}.md", to_markdown(table)),
+        write_text_atomic(out_dir / f"{table.name}.md", to_markdown(table, published)),
         write_text_atomic(out_dir / f"{table.name}.tex", to_latex(table)),
     ]

@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
+from edr.rebuild import UntrustedRecord, instantiate_from_record
 from edr.records import read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
@@ -323,14 +323,17 @@ def load_network(run_dir: str | Path) -> PAACNetwork:
     return network
 
 
-def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[str, Any]:
+def evaluate_checkpoint(
+    run_dir: str | Path, plays: int | None = None, trust_env_module: bool = False
+) -> dict[str, Any]:
     """Score the network of an Atari run's latest checkpoint, for a run stopped before its end.
 
     Rebuilds the envs and network from the run's record (``run.json``), plays ``plays`` games
     (the run's ``evaluation.plays`` by default) as the run would have, and writes
     ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
     (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
-    the metrics.
+    the metrics. The record builds only the suite's own parts (:mod:`edr.rebuild`), and a
+    module it names (``task.env.env_module``) is imported only with ``trust_env_module``.
     """
     run_dir = Path(run_dir)
     record = read_record(run_dir / "run.json")
@@ -339,8 +342,15 @@ def evaluate_checkpoint(run_dir: str | Path, plays: int | None = None) -> dict[s
             f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
             "updates and where Ctrl-C or SIGTERM stops it"
         )
-    task = instantiate(record["config"]["task"]).keywords  # train_paac's arguments, EDR built
-    env, evaluation = task["env"], task["evaluation"]
+    # train_paac's arguments, EDR built
+    task = instantiate_from_record(record["config"]["task"], "config.task").keywords
+    env = task["env"]
+    if env.env_module is not None and not trust_env_module:
+        raise UntrustedRecord(
+            f"{run_dir / 'run.json'} names task.env.env_module={env.env_module}: importing it "
+            "runs its code; pass --trust-env-module (trust_env_module=True) if you trust it"
+        )
+    evaluation = task["evaluation"]
     env_kwargs = _env_kwargs(env)
     network, _ = _network(env_kwargs, task["network"], env.frame_stack)
     state = load_checkpoint(run_dir / CHECKPOINT)
@@ -364,5 +374,14 @@ if __name__ == "__main__":
     )
     parser.add_argument("run_dir", type=Path, help="the run's folder (run.json, checkpoint.pt)")
     parser.add_argument("--plays", type=int, default=None, help="games (default: the run's)")
+    parser.add_argument(
+        "--trust-env-module",
+        action="store_true",
+        help="import the module the record names (task.env.env_module): it runs its code",
+    )
     args = parser.parse_args()
-    print(json.dumps(evaluate_checkpoint(args.run_dir, args.plays), indent=1))
+    try:
+        metrics = evaluate_checkpoint(args.run_dir, args.plays, args.trust_env_module)
+    except (UntrustedRecord, FileNotFoundError) as error:
+        parser.exit(2, f"{parser.prog}: {error}\n")
+    print(json.dumps(metrics, indent=1))

@@ -55,11 +55,21 @@ def save_confusion(matrix: np.ndarray, classes: Sequence[str], path: Path) -> Pa
 
 
 def save_score_curve(history: Sequence[dict[str, float]], path: Path, title: str = "") -> Path:
-    """Mean score of recent training episodes against env steps (the paper's Figure 5)."""
+    """Mean score of recent training episodes against env steps (the paper's Figure 5), and
+    beside it whether the network stays alive: the fraction of dead units per ReLU layer and
+    the critic's mean value."""
     scored = [row for row in history if "train/score" in row]
-    fig, ax = plt.subplots(figsize=(5, 3))
-    ax.plot([r["env_steps"] for r in scored], [r["train/score"] for r in scored], "k-")
-    ax.set(xlabel="env steps", ylabel="mean score (last 20 episodes)", title=title)
+    fig, (score, dead, value) = plt.subplots(1, 3, figsize=(13, 3))
+    score.plot([r["env_steps"] for r in scored], [r["train/score"] for r in scored], "k-")
+    score.set(xlabel="env steps", ylabel="mean score (last 20 episodes)", title=title)
+    steps = [r["env_steps"] for r in history]
+    for layer in sorted({k for row in history for k in row if k.startswith("dead/")}):
+        dead.plot(steps, [r.get(layer, float("nan")) for r in history], label=layer[5:])
+    dead.set(xlabel="env steps", ylabel="dead units (fraction)", ylim=(-0.02, 1.02))
+    if dead.lines:
+        dead.legend(fontsize=7)
+    value.plot(steps, [r.get("train/value_mean", float("nan")) for r in history], "b-")
+    value.set(xlabel="env steps", ylabel="critic's mean value")
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100)

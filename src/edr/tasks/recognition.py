@@ -16,7 +16,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
@@ -25,6 +24,7 @@ from edr.atomic import write_json_atomic
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity
+from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
 from edr.representations import Representation
 from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, save_checkpoint
@@ -62,12 +62,18 @@ def evaluate(
 
 
 def load_model(run_dir: str | Path) -> RecognitionModel:
-    """The model a recognition run trained, rebuilt from its record's config and ``model.pt``."""
+    """The model a recognition run trained, rebuilt from its record's config and ``model.pt``;
+    the config builds only the suite's own parts (:mod:`edr.rebuild`)."""
     run_dir = Path(run_dir)
     config = read_record(run_dir / RECORD_NAME)["config"]
     saved = torch.load(run_dir / MODEL, weights_only=True)
-    representation = instantiate(config["representation"]) if saved["online"] else None
-    backbone = instantiate(config["backbone"])(**saved["backbone_args"])
+    representation = (
+        instantiate_from_record(config["representation"], "config.representation")
+        if saved["online"]
+        else None
+    )
+    backbone = instantiate_from_record(config["backbone"], "config.backbone")
+    backbone = backbone(**saved["backbone_args"])
     model = RecognitionModel(representation, backbone)
     model.load_state_dict(saved["state_dict"])
     return model

@@ -1,0 +1,98 @@
+"""Every shell command of the README, sweeps/README.md and paper/README.md (their fenced
+``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary folder: a command that stops
+working fails CI.
+
+How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, the first value of
+each axis its experiment file sweeps and the command does not set (one cell per grid axis);
+``/data/...`` paths become small data the test generates in that data set's layout;
+``edr-bench`` times tiny clips; ``edr-tables`` writes into the temporary folder. ``make``
+targets are not run here: ``make test`` is this suite, and ``make demo`` is ``edr-run -m
+experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+
+from edr.data.synthetic import write_synthetic_kth, write_synthetic_ucf101
+from edr.data.video import write_video
+from edr.run import CONF_DIR
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md")
+BENCH_TINY = ("--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
+              "--width", "48", "--atari-batch", "2", "--long-frames", "9")  # fmt: skip
+
+
+def documented_commands(document: Path) -> list[list[str]]:
+    """The commands of ``document``'s ```bash blocks, split as the shell would, comments off."""
+    blocks = re.findall(r"```bash\n(.*?)```", document.read_text(), flags=re.S)
+    text = "\n".join(blocks).replace("\\\n", " ")
+    return [words for line in text.splitlines() if (words := shlex.split(line, comments=True))]
+
+
+def _data(tmp: Path) -> dict[str, str]:
+    """The documented /data paths, as small data in each set's layout."""
+    kth = write_synthetic_kth(tmp / "data" / "KTH", persons=4, scenarios=1, frames=16)
+    ucf = write_synthetic_ucf101(tmp / "data" / "UCF-101", groups=8, clips=1, frames=16,
+                                 height=60, width=80)  # fmt: skip
+    frames = np.random.default_rng(0).integers(0, 255, (12, 60, 80, 3), dtype=np.uint8)
+    clip = write_video(tmp / "data" / "clip.avi", frames)
+    return {"/data/KTH": str(kth), "/data/UCF-101": str(ucf), "/data/clip.avi": str(clip)}
+
+
+def _sweep_axes(overrides: list[str]) -> dict[str, str]:
+    """The axes an experiment file sweeps, with the first value of each."""
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    params = cfg.hydra.sweeper.params or {}
+    return {str(k): str(v).split(",")[0] for k, v in params.items()}
+
+
+def _substituted(word: str, data: dict[str, str]) -> str:
+    key, equals, value = word.partition("=")
+    return f"{key}={data[value]}" if equals and value in data else word
+
+
+def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
+    """The command made small (see the module's docstring)."""
+    program, args = words[0], [_substituted(w, data) for w in words[1:]]
+    if program == "edr-run" and not {"--help", "--cfg"} & set(args):
+        args = [*args, "debug=tiny"] if "debug=tiny" not in args else args
+        if "-m" in args:
+            given = {a.split("=", 1)[0] for a in args if "=" in a}
+            plain = [a for a in args if a != "-m"]
+            args += [f"{k}={v}" for k, v in _sweep_axes(plain).items() if k not in given]
+    elif program == "edr-bench":
+        args = [*args, *BENCH_TINY, "--out-dir", str(tmp / "results" / "bench")]
+    elif program == "edr-tables" and "--out" not in args:
+        args = [*args, "--out", str(tmp / "paper")]
+    if program == "edr-tables":
+        args = [str(tmp / a[1:]) if a.startswith("/tmp/") else a for a in args]
+    return [program, *args]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("document", DOCUMENTS)
+def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
+    commands = documented_commands(ROOT / document)
+    assert commands, f"{document} has no bash block"
+    data = _data(tmp_path)
+    env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results")}
+    for words in commands:
+        if words[0] == "make":
+            continue  # see the module's docstring
+        command = tiny(words, data, tmp_path)
+        result = cli(*command, cwd=tmp_path, env=env)
+        shown = shlex.join(words)
+        assert result.returncode == 0, f"{document}: `{shown}` failed:\n{result.stderr[-3000:]}"
+        output = result.stdout + result.stderr
+        assert "Traceback" not in output, f"{document}: `{shown}`:\n{output[-3000:]}"
+        if command[0] == "edr-run" and "debug=tiny" in command:
+            assert " finished: " in output or "skipped" in output, f"`{shown}`: {output[-2000:]}"

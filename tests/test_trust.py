@@ -1,0 +1,104 @@
+"""A run folder from someone else is safe to load: its record builds only the suite's own parts,
+and never imports a module it names unless the user says so."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import pytest
+
+from edr.rebuild import UntrustedRecord, check_targets
+from edr.run import run
+from edr.tasks.atari import evaluate_checkpoint
+from edr.tasks.recognition import load_model
+
+
+class _Payload:
+    """Unpickling this writes a file: what a crafted pickle would do, harmlessly."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+@pytest.fixture(scope="module")
+def kth_run(tmp_path_factory, compose_config):
+    out = tmp_path_factory.mktemp("kth")
+    run(compose_config("task=kth", "debug=tiny", f"out_dir={out}",
+                       f"task.cache_dir={out / 'cache'}", "task.logger="))  # fmt: skip
+    return out
+
+
+@pytest.fixture(scope="module")
+def compose_config():
+    from conftest import _compose
+
+    return _compose
+
+
+def _crafted(run_dir, key: str, node: dict) -> None:
+    record = json.loads((run_dir / "run.json").read_text())
+    record["config"][key] = node
+    (run_dir / "run.json").write_text(json.dumps(record))
+
+
+def test_a_sound_record_loads(kth_run) -> None:
+    assert sum(p.numel() for p in load_model(kth_run).parameters()) > 0
+
+
+@pytest.mark.parametrize(
+    ("key", "node"),
+    [
+        ("representation", {"_target_": "torch.load", "f": "PICKLE", "weights_only": False}),
+        ("representation", {"_target_": "numpy.load", "file": "PICKLE", "allow_pickle": True}),
+        ("backbone", {"_target_": "builtins.open", "file": "MARKER", "mode": "w"}),
+        ("backbone", {"_target_": "shutil.copyfile", "src": "PICKLE", "dst": "MARKER"}),
+        ("backbone", {"_target_": "edr.atomic.write_text_atomic", "path": "MARKER", "text": "x"}),
+        ("backbone", {"_target_": "edr.models.LeNet", "_partial_": True,
+                      "extra": {"_target_": "os.system", "command": "touch MARKER"}}),
+    ],
+)  # fmt: skip
+def test_a_crafted_record_is_refused_before_anything_runs(key, node, kth_run, tmp_path) -> None:
+    pickled, marker = tmp_path / "payload.pkl", tmp_path / "marker"
+    pickled.write_bytes(pickle.dumps(_Payload(str(marker))))
+    text = json.dumps(node).replace("PICKLE", str(pickled)).replace("MARKER", str(marker))
+    saved = (kth_run / "run.json").read_text()
+    try:
+        _crafted(kth_run, key, json.loads(text))
+        with pytest.raises(UntrustedRecord, match=r"config\.\w+.*_target_="):
+            load_model(kth_run)
+    finally:
+        (kth_run / "run.json").write_text(saved)
+    assert not marker.exists()
+
+
+def test_an_atari_record_builds_only_a_partial_task_and_imports_no_named_module(tmp_path) -> None:
+    record = {
+        "seed": 0,
+        "config": {"task": {"_target_": "numpy.load", "file": "x.npy", "allow_pickle": True}},
+    }
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    (tmp_path / "checkpoint.pt").write_bytes(b"")
+    with pytest.raises(UntrustedRecord, match=r"config\.task\._target_=numpy\.load"):
+        evaluate_checkpoint(tmp_path)
+    record["config"]["task"] = {"_target_": "edr.tasks.atari.train_paac", "out_dir": "x"}
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    with pytest.raises(UntrustedRecord, match="only as a partial"):
+        evaluate_checkpoint(tmp_path)
+    record["config"]["task"] = {
+        "_target_": "edr.tasks.atari.train_paac", "_partial_": True,
+        "env": {"_target_": "edr.rl.settings.EnvSettings", "env_id": "Mine-v0", "preset": "none",
+                "env_module": "some_module_that_would_run_code"},
+    }  # fmt: skip
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    with pytest.raises(UntrustedRecord, match="--trust-env-module"):
+        evaluate_checkpoint(tmp_path)
+
+
+def test_the_suites_own_parts_pass() -> None:
+    check_targets({"_target_": "edr.representations.EDR", "half_lives": [3.8]}, "representation")
+    check_targets({"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-3}, "optimizer")
+    check_targets({"_target_": "edr.rl.settings.EvalSettings", "plays": 2}, "evaluation")
