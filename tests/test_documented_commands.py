@@ -42,7 +42,7 @@ def _data(tmp: Path) -> dict[str, str]:
     kth = write_synthetic_kth(tmp / "data" / "KTH", persons=4, scenarios=1, frames=16)
     ucf = write_synthetic_ucf101(tmp / "data" / "UCF-101", groups=8, clips=1, frames=16,
                                  height=60, width=80)  # fmt: skip
-    frames = np.random.default_rng(0).integers(0, 255, (12, 60, 80, 3), dtype=np.uint8)
+    frames = np.random.default_rng(0).integers(0, 255, (12, 3, 60, 80), dtype=np.uint8)
     clip = write_video(tmp / "data" / "clip.avi", frames)
     return {"/data/KTH": str(kth), "/data/UCF-101": str(ucf), "/data/clip.avi": str(clip)}
 
@@ -67,7 +67,7 @@ def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
         args = [*args, "debug=tiny"] if "debug=tiny" not in args else args
         if "-m" in args:
             given = {a.split("=", 1)[0] for a in args if "=" in a}
-            plain = [a for a in args if a != "-m"]
+            plain = [a for a in args if a != "-m" and "," not in a]  # a swept axis: its own
             args += [f"{k}={v}" for k, v in _sweep_axes(plain).items() if k not in given]
     elif program == "edr-bench":
         args = [*args, *BENCH_TINY, "--out-dir", str(tmp / "results" / "bench")]

@@ -54,7 +54,7 @@ class NetworkSettings:
     """The actor-critic network after the conv trunk."""
 
     core: Core = "ftlstm"  # ftlstm (the paper's), lstm, or none (feed-forward PAAC)
-    init: Init = "orthogonal"  # orthogonal (OpenAI's A2C) or fan_in (PAAC's TensorFlow code)
+    init: Init = "fan_in"  # fan_in (PAAC's TensorFlow code) or orthogonal (OpenAI's A2C)
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class LossSettings:
 class OptimSettings:
     """The optimizer, its gradient clip and its learning-rate schedule."""
 
-    name: OptimizerName = "adam"  # adam, or rmsprop_tf (PAAC's TensorFlow RMSprop)
+    name: OptimizerName = "rmsprop_tf"  # PAAC's TensorFlow RMSprop, or adam
     lr: PositiveFloat | None = None  # None: the optimizer's default (DEFAULT_LR)
     lr_decay_env_steps: PositiveInt = 80_000_000  # the learning rate reaches 0 here
     max_grad_norm: PositiveFloat = 3.0  # L2 clip of the whole gradient
@@ -85,7 +85,7 @@ class OptimSettings:
         return self.lr or DEFAULT_LR[self.name]
 
 
-DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # ours for Adam; PAAC's for its RMSprop
+DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # OpenAI A2C's for Adam; PAAC's for its RMSprop
 
 
 @dataclass(frozen=True)
