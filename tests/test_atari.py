@@ -164,3 +164,22 @@ def test_the_readmes_own_game_command_runs(cli, tmp_path) -> None:
     (line,) = [x for x in (missing.stdout + missing.stderr).splitlines() if "no_such" in x]
     assert "task.env.env_module='no_such_games': expected a module" in line
     assert not list((tmp_path / "results" / "runs" / "atari").glob("*no_such_games*/run.json"))
+
+
+@pytest.mark.learning
+def test_the_first_convolution_stays_alive_on_pong(compose_config, tmp_path) -> None:
+    """Pong with the Table 1 defaults, 150 updates (24K env steps), both inputs, 2 seeds: with
+    Adam 7e-4 (the old default) 75-100 % of conv1's units were dead by then; with the defaults
+    (PAAC's RMSprop, fan_in init) 6-25 % (results/learning/README.md)."""
+    dead = []
+    for inputs in ("fdr", "fdr_edr"):
+        for seed in (0, 1):
+            out = tmp_path / f"{inputs}_{seed}"
+            metrics = run(compose_config(
+                "experiment=table1_atari", "game=pong", f"task.env.inputs={inputs}",
+                f"seed={seed}", "task.env_steps=24000", "task.evaluation.plays=1",
+                "task.evaluation.max_steps=1", "task.logger=", f"out_dir={out}",
+            ))  # fmt: skip
+            dead.append(metrics["dead/trunk.1"])
+    assert max(dead) <= 6 / 16, dead  # no run lost more than 6 of its 16 units
+    assert np.mean(dead) <= 1 / 4, dead

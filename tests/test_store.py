@@ -6,6 +6,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -142,3 +143,67 @@ def test_a_replaced_video_is_decoded_again(tmp_path) -> None:
     os.utime(video, ns=(1, 1))  # even a copy that kept an old mtime has another size
     after = np.array(VideoSource(tmp_path / "cache", size=(32, 24), gray=True)(video))
     assert not np.array_equal(before, after) and after.mean() > 190
+
+
+def test_one_writer_per_run_folder(cli, tmp_path) -> None:
+    """A second run on a folder another live process holds exits at once, naming the holder;
+    a lock left by a process that is gone is taken over."""
+    import json
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    from edr.store import LOCK
+
+    folder = tmp_path / "run"
+    args = [str(Path(sys.executable).parent / "edr-run"), *TINY_KTH, "task.epochs=6",
+            "task.clips_per_epoch=60", f"hydra.run.dir={folder}"]  # fmt: skip
+    env = {**os.environ, "EDR_CACHE": str(tmp_path / "cache")}
+    first = subprocess.Popen(args, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not (folder / LOCK).exists():
+            assert first.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        second = cli(
+            *["edr-run", *args[1:]], cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")}
+        )
+        assert second.returncode == 2
+        assert f"is held by process {first.pid} on {socket.gethostname()}" in second.stdout
+    finally:
+        first.wait(timeout=300)
+    assert first.returncode == 0 and not (folder / LOCK).exists()  # released at the end
+    steps = (folder / "logs/scalars/train/loss.csv").read_text().split()
+    assert [s.split(",")[0] for s in steps] == ["1", "2", "3", "4", "5", "6"]  # one writer
+
+    (folder / LOCK).write_text(json.dumps({"host": socket.gethostname(), "pid": 2**22 + 7}))
+    again = cli(*["edr-run", *args[1:], "resume=false"], cwd=tmp_path,
+                env={"EDR_CACHE": str(tmp_path / "cache")})  # fmt: skip
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "taking over the lock of a process that is gone" in again.stdout + again.stderr
+
+
+def test_a_running_record_whose_process_is_gone_reads_as_interrupted(tmp_path) -> None:
+    import json
+
+    from edr.results import load_runs
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "run.json").write_text(json.dumps({"status": "running", "task": "kth"}))
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "run.json").write_text("{truncated")
+    runs = load_runs([tmp_path]).set_index("record")
+    assert runs.loc[str(tmp_path / "a" / "run.json"), "status"] == "interrupted"
+    assert runs.loc[str(tmp_path / "b" / "run.json"), "status"] == "unreadable"
+    from edr.results import unfinished
+
+    listed = unfinished(runs.reset_index(), "atari")  # every table lists unreadable records
+    assert list(listed["record"]) == [str(tmp_path / "b" / "run.json")]
+
+
+def test_a_truncated_record_names_itself_and_the_remedy(compose_config, tmp_path) -> None:
+    (tmp_path / "run.json").write_text('{"status": "runn')
+    with pytest.raises(ValueError, match=r"run\.json is not a readable run record .*resume=false"):
+        run(compose_config(*TINY_KTH, f"out_dir={tmp_path}"))

@@ -79,9 +79,23 @@ def write_record(out_dir: Path, record: dict[str, Any]) -> Path:
     return write_json_atomic(Path(out_dir) / RECORD_NAME, record)
 
 
+class UnreadableRecord(ValueError):
+    """A record that is empty, truncated or not JSON; the message names the file and the remedy."""
+
+
 def read_record(path: Path) -> dict[str, Any]:
-    with open(path) as f:
-        return json.load(f)
+    """The record at ``path``; :class:`UnreadableRecord` naming it if it cannot be parsed."""
+    try:
+        with open(path) as f:
+            record = json.load(f)
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise UnreadableRecord(
+            f"{path} is not a readable run record ({error}): pass resume=false to start the run "
+            "over, or move its folder away"
+        ) from None
+    if not isinstance(record, dict):
+        raise UnreadableRecord(f"{path} holds {type(record).__name__}, not a run record")
+    return record
 
 
 def check_flat(metrics: dict[str, Any]) -> dict[str, Any]:

@@ -21,6 +21,7 @@ import pandas as pd
 
 from edr.identity import flatten
 from edr.records import RECORD_NAME
+from edr.store import holder_alive
 
 # What must match for runs to be averaged into one number.
 CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]
@@ -40,12 +41,21 @@ def _shown(path: Path) -> str:
     return str(path.relative_to(Path.cwd())) if path.is_relative_to(Path.cwd()) else str(path)
 
 
+def _status(path: Path, record: dict[str, Any]) -> str:
+    """The record's status; ``running`` only while a live process holds its folder (a run
+    killed by the OOM killer or a full disk leaves ``running`` behind: it is ``interrupted``)."""
+    status = record.get("status", "legacy")  # legacy: records from before the results store
+    if status == "running" and not holder_alive(path.parent):
+        return "interrupted"
+    return status
+
+
 def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {
         "record": _shown(path),
         "run_dir": _shown(path.parent),
         "task": record.get("task"),
-        "status": record.get("status", "legacy"),  # records from before the results store
+        "status": _status(path, record),
         "error": record.get("error"),
         "fingerprint": record.get("fingerprint"),
         "cell": record.get("cell"),
@@ -95,10 +105,12 @@ def finished(
 
 
 def unfinished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
-    """The runs of ``task`` that are not finished (failed, running, legacy): to list, not average."""
+    """The runs of ``task`` that are not finished (failed, running, legacy), and every record
+    that could not be read (whose task nobody knows): to list under a table, not average."""
     if runs.empty:
         return runs
-    return runs[(runs["task"] == task) & (runs["status"] != "finished")]
+    mine = (runs["task"] == task) & (runs["status"] != "finished")
+    return runs[mine | (runs["status"] == "unreadable")]
 
 
 def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> pd.DataFrame:

@@ -30,7 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.records import check_flat, git_revision, machine_info, now, write_record
 from edr.report.published import load_published, lookup
-from edr.store import Resume, log_attempt, plan_attempt
+from edr.store import Resume, hold_folder, log_attempt, plan_attempt
 from edr.validate import ConfigError, PositiveInt, check_config
 
 CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # ships in the package; ./conf links here
@@ -76,15 +76,26 @@ def _hydra_context() -> tuple[dict[str, str], list[str]]:
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Run the task ``cfg`` describes in ``cfg.out_dir`` and return its flat metrics.
 
-    Checks the config first; skips a finished run of the same config, resumes from its
-    checkpoint an interrupted one, refuses a folder holding another config.
+    Checks the config first; holds the folder (one writer at a time); skips a finished run of
+    the same config, resumes from its checkpoint an interrupted one, refuses a folder holding
+    another config.
     """
-    # ---- checks and the plan -----------------------------------------------------------------
     check_config(cfg, entry=ENTRY_KEYS)
+    out_dir = Path(cfg.out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"cannot create the run folder {out_dir}: {error.strerror}") from None
+    with hold_folder(out_dir):
+        return _run_held(cfg, out_dir)
+
+
+def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
+    """:func:`run` in the folder it holds."""
+    # ---- checks and the plan -----------------------------------------------------------------
     choices, overrides = _hydra_context()
     if not _in_sweep():  # a sweep says it once, before its first job (SweepSummary)
         warn_ignored(cfg, overrides)
-    out_dir = Path(cfg.out_dir)
     semantic, fingerprint, cell = run_identity(cfg)
     plan = plan_attempt(out_dir, fingerprint, semantic, cfg.resume)
     if plan.action == "skip":
@@ -127,7 +138,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         "config": OmegaConf.to_container(cfg, resolve=True),
         "semantic_config": semantic,
     }
-    out_dir.mkdir(parents=True, exist_ok=True)
     write_record(out_dir, record)
     started = time.perf_counter()
     try:

@@ -16,21 +16,32 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import socket
 import time
 from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, read_write
 
-from edr.identity import config_diff, flatten, warn_ignored
+from edr.identity import (
+    IDENTITY_KEYS,
+    config_diff,
+    flatten,
+    is_semantic_override,
+    warn_ignored,
+)
 from edr.records import RECORD_NAME, now, read_record
 from edr.tasks.checkpoints import CHECKPOINT
 from edr.validate import ConfigError
 
 ATTEMPTS = "attempts.jsonl"
+LOCK = "run.lock"  # held while a process writes the folder: {"host", "pid", "since"}
 Resume = Literal["auto", True, False]
 # Budgets a run may be raised to and continued: the training up to the old budget does not
 # depend on them (Atari's learning rate follows task.optim.lr_decay_env_steps, not
@@ -70,7 +81,12 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
     if resume is False:
         return Plan("run", record)
     if record is not None and record.get("fingerprint") != fingerprint:
-        old = record.get("semantic_config", {})
+        # what can change a result (a record from before the fingerprint kept only these keys
+        # holds the whole config: the same run if these agree)
+        old = {k: v for k, v in record.get("semantic_config", {}).items() if k in IDENTITY_KEYS}
+        if old == semantic:
+            return _plan_for_this_config({**record, "fingerprint": fingerprint}, checkpoint,
+                                         resume, out_dir)  # fmt: skip
         extended = _raised_budgets(old, semantic) if checkpoint is not None else ()
         if extended:
             return Plan("resume", record, extended)
@@ -79,6 +95,13 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
             f"{out_dir} holds a run of another config ({'; '.join(changed)}): "
             "restore those values, choose another folder, or pass resume=false to start over"
         )
+    return _plan_for_this_config(record, checkpoint, resume, out_dir)
+
+
+def _plan_for_this_config(
+    record: dict[str, Any] | None, checkpoint: Path | None, resume: Resume, out_dir: Path
+) -> Plan:
+    """The plan once ``record`` (if any) is known to be of this config."""
     if record is not None and record.get("status") == "finished":
         return Plan("skip", record)
     if checkpoint is not None:
@@ -94,6 +117,65 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
             f"({'no such folder' if not out_dir.exists() else 'no ' + CHECKPOINT})"
         )
     return Plan("run", record)
+
+
+class FolderHeld(ConfigError):
+    """Another live process writes this run folder."""
+
+
+def _holder(lock: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(lock.read_text())
+    except (OSError, ValueError):
+        return None  # gone, or half-written by a process that died while writing it
+
+
+def holder_alive(out_dir: Path) -> bool:
+    """Whether a live process holds ``out_dir`` (on another host: assumed alive)."""
+    holder = _holder(Path(out_dir) / LOCK)
+    if holder is None:
+        return False
+    if holder.get("host") != socket.gethostname():
+        return True
+    try:
+        os.kill(int(holder.get("pid", -1)), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, ValueError, OverflowError):
+        return True
+    return True
+
+
+@contextmanager
+def hold_folder(out_dir: Path) -> Iterator[None]:
+    """Hold ``out_dir`` for this process while the body runs: one writer per run folder. A lock
+    left by a process that died is taken over; a live holder is :class:`FolderHeld`."""
+    lock = Path(out_dir) / LOCK
+    me = {"host": socket.gethostname(), "pid": os.getpid(), "since": now()}
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            if holder_alive(out_dir):
+                holder = _holder(lock) or {}
+                raise FolderHeld(
+                    f"{out_dir} is held by process {holder.get('pid')} on "
+                    f"{holder.get('host')} since {holder.get('since')} ({lock}): wait for it, "
+                    "or choose another folder"
+                ) from None
+            log.warning("%s: taking over the lock of a process that is gone", out_dir)
+            lock.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(me))
+        break
+    else:
+        raise FolderHeld(f"{lock}: could not take the folder's lock")
+    try:
+        yield
+    finally:
+        if (_holder(lock) or {}).get("pid") == me["pid"]:
+            lock.unlink(missing_ok=True)
 
 
 def log_attempt(out_dir: Path, outcome: str, fingerprint: str, **details: Any) -> None:
@@ -121,12 +203,30 @@ def outcomes_since(sweep_dir: Path, since: float) -> Counter[str]:
     return counts
 
 
+def _run_each_folder_once(config: DictConfig) -> None:
+    """A swept key that cannot change a result (``threads=1,2``) would map every value to one
+    folder and run the same cell again: sweep its first value only, and say so."""
+    overrides = list(config.hydra.overrides.task)
+    kept = [o if is_semantic_override(o) or "," not in o else o.split(",")[0] for o in overrides]
+    if kept != overrides:
+        dropped = [o for o, k in zip(overrides, kept, strict=True) if o != k]
+        log.warning(
+            "warning: %s: these values do not change a result, so every one maps to the same "
+            "folder; the sweep runs each cell once, with %s",
+            " ".join(dropped),
+            " ".join(k for o, k in zip(overrides, kept, strict=True) if o != k),
+        )
+        with read_write(config.hydra.overrides):
+            config.hydra.overrides.task = kept
+
+
 class SweepSummary(Callback):
     """At the end of a multirun, one line: how many cells were skipped, resumed, run, failed."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self.started = time.time()
         warn_ignored(config, config.hydra.overrides.task)
+        _run_each_folder_once(config)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
