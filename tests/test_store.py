@@ -207,3 +207,27 @@ def test_a_truncated_record_names_itself_and_the_remedy(compose_config, tmp_path
     (tmp_path / "run.json").write_text('{"status": "runn')
     with pytest.raises(ValueError, match=r"run\.json is not a readable run record .*resume=false"):
         run(compose_config(*TINY_KTH, f"out_dir={tmp_path}"))
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (("seed=-1",), "seed=-1: expected a number >= 0"),
+        (("seed=99999999999",), "seed=99999999999: expected a number <= 4294967295"),
+        (("optimizer.lr=-1",), "task.optimizer.lr=-1: expected a number > 0"),
+        (("optimizer.lr=abc",), "task.optimizer.lr='abc': expected a number"),
+        (("optimizer.momentum=-5",), "task.optimizer.momentum=-5: expected a number >= 0"),
+        (("task.data_root=''",), "task.data_root='': expected a folder (an empty path"),
+        (("task.crop=500",), "task.crop=500: expected at most the frames' short side, 30"),
+        (("task=dvs_transfer", "task.dvs_root=/nope"), "task.dvs_root='/nope': expected an existing folder"),
+        (("task=atari", "task.env.game=Pongg"), "task.env.game='Pongg': expected an ALE game (Pong"),
+    ],
+)  # fmt: skip
+def test_a_bad_value_is_one_line_before_any_work(compose_config, overrides, message, tmp_path):
+    task = () if any(o.startswith("task=") for o in overrides) else ("task=kth",)
+    cache = () if "task=atari" in overrides else (f"task.cache_dir={tmp_path / 'cache'}",)
+    cfg = compose_config(*task, "debug=tiny", *overrides, *cache, f"out_dir={tmp_path / 'run'}")
+    with pytest.raises(ConfigError) as caught:
+        run(cfg)
+    assert message in str(caught.value) and "\n" not in str(caught.value)
+    assert not list(tmp_path.rglob("*.avi"))  # nothing decoded or generated

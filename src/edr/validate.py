@@ -9,10 +9,12 @@ import dataclasses
 import importlib.util
 import inspect
 import math
+import re
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from omegaconf import DictConfig, ListConfig
@@ -89,6 +91,47 @@ def _module_problem(name: Any) -> str | None:
 
 
 ModuleName = Annotated[str, Check(_module_problem)]  # importable (not imported by the check)
+Seed = Annotated[int, Range(0, 2**32 - 1)]  # what numpy's and torch's generators take
+
+
+def _data_root_problem(path: Any) -> str | None:
+    return "a folder (an empty path is not a data set; null generates one)" if path == "" else None
+
+
+def _existing_dir_problem(path: Any) -> str | None:
+    return _data_root_problem(path) or (
+        None if Path(str(path)).expanduser().is_dir() else "an existing folder"
+    )
+
+
+DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
+ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
+
+
+def _game_problem(game: Any) -> str | None:
+    import difflib
+
+    import ale_py.roms
+
+    rom_id = re.sub(r"(?<!^)(?=[A-Z])", "_", str(game)).lower()  # MsPacman -> ms_pacman
+    known = ale_py.roms.get_all_rom_ids()
+    if rom_id in known:
+        return None
+    names = ["".join(w.capitalize() for w in r.split("_")) for r in known]
+    near = difflib.get_close_matches(str(game), names, n=3, cutoff=0.5)
+    return f"an ALE game ({', '.join(near) if near else 'see ale_py.roms.get_all_rom_ids()'}?)"
+
+
+AtariGame = Annotated[str, Check(_game_problem)]  # a game whose ROM ale-py ships
+# A torch optimizer's arguments (its own annotations do not say their ranges).
+OPTIMIZER_ARGUMENTS = {
+    "lr": PositiveFloat,
+    "momentum": NonNegativeFloat,
+    "dampening": NonNegativeFloat,
+    "weight_decay": NonNegativeFloat,
+    "eps": PositiveFloat,
+    "alpha": NonNegativeFloat,
+}
 
 
 def _plain(value: Any) -> Any:
@@ -199,6 +242,8 @@ def check_node(node: DictConfig, where: str) -> None:
 
     target = get_object(node["_target_"])
     hints = _hints(target)
+    if inspect.isclass(target) and issubclass(target, _torch_optimizer()):
+        hints = {**hints, **OPTIMIZER_ARGUMENTS}
     for key, value in node.items():
         if str(key).startswith("_"):
             continue
@@ -207,6 +252,12 @@ def check_node(node: DictConfig, where: str) -> None:
             check_node(value, name)
         elif key in hints and (expected := mismatch(value, hints[key])):
             raise ConfigError(f"{name}={_plain(value)!r}: expected {expected}")
+
+
+def _torch_optimizer() -> type:
+    import torch
+
+    return torch.optim.Optimizer
 
 
 def check_config(cfg: DictConfig, *, entry: Mapping[str, Any]) -> None:

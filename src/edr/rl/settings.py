@@ -13,7 +13,14 @@ from edr.representations import EDR
 from edr.rl.envs import Backend, Preset
 from edr.rl.optim import OptimizerName
 from edr.rl.paac import Core, Init
-from edr.validate import Fraction, ModuleName, NonNegativeFloat, PositiveFloat, PositiveInt
+from edr.validate import (
+    AtariGame,
+    Fraction,
+    ModuleName,
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+)
 
 Inputs = Literal["fdr", "fdr_edr", "edr"]
 INPUT_NAMES: dict[str, str] = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1
@@ -24,7 +31,7 @@ BackendChoice = Backend | Literal["auto"]
 class EnvSettings:
     """Which game, how its envs are stepped, and what the network sees of them."""
 
-    game: str = "Pong"  # ALE game name
+    game: AtariGame = "Pong"  # ALE game name
     env_id: str | None = None  # a gymnasium id to play instead (with preset="none")
     env_module: ModuleName | None = None  # the module whose import registers env_id
     preset: Preset = "paac"  # paac: frame skip 4 + max, 30 no-ops; v5: ALE's; none: your env

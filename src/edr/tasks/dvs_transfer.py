@@ -26,7 +26,7 @@ from edr.representations import EDR, DVSSimulator, events_to_frames
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted
-from edr.validate import Fraction, NonNegativeInt, PositiveFloat, PositiveInt
+from edr.validate import DataRoot, ExistingDir, Fraction, NonNegativeInt, PositiveFloat, PositiveInt
 
 
 def _event_clip(
@@ -77,9 +77,9 @@ def dvs_transfer(
     optimizer: Callable[..., torch.optim.Optimizer],
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
-    data_root: str | None = None,
+    data_root: DataRoot | None = None,
     cache_dir: str = "results/cache",
-    dvs_root: str | None = None,
+    dvs_root: ExistingDir | None = None,
     simulator: dict[str, float] | None = None,
     streams_per_class: PositiveInt = 10,
     resize: tuple[PositiveInt, PositiveInt] = (89, 67),

@@ -31,7 +31,14 @@ from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, restore, save_ato
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import open_logger
-from edr.validate import LoggerName, NonNegativeInt, PositiveFloat, PositiveInt
+from edr.validate import (
+    ConfigError,
+    DataRoot,
+    LoggerName,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+)
 
 MODEL = "model.pt"  # the trained model's state_dict and the backbone's size arguments
 HISTORY = "history.json"  # one row per epoch: train loss and accuracy, test accuracy, lr
@@ -88,7 +95,7 @@ def fit_recognition(
     optimizer: Callable[..., torch.optim.Optimizer],
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
-    data_root: str | None = None,
+    data_root: DataRoot | None = None,
     cache_dir: str = "results/cache",
     resize: tuple[PositiveInt, PositiveInt] = (89, 67),
     gray: bool = False,
@@ -110,6 +117,11 @@ def fit_recognition(
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
     model and the metrics, and writes the history, confusion matrix, figures and model."""
     # ---- data, checkpoint, logger ------------------------------------------------------------
+    if crop > min(resize):
+        raise ConfigError(
+            f"task.crop={crop}: expected at most the frames' short side, {min(resize)} "
+            f"(task.resize={list(resize)}): a crop is cut from a frame, then resized"
+        )
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     dev = torch.device(device)
