@@ -79,3 +79,13 @@ def publish_dir(root: str | Path, write: Callable[[Path], None]) -> Path:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return root
+
+
+def save_figure(fig: Any, path: str | Path, dpi: int = 100) -> Path:
+    """Write a matplotlib figure to ``path`` atomically (PNG, PDF: by the suffix), then close it."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
+    import matplotlib.pyplot as plt  # only the callers that draw need matplotlib
+
+    plt.close(fig)
+    return Path(path)

@@ -18,6 +18,19 @@ import torch
 from torch import nn
 
 
+def feature_tracking_weights(gates: int, channels: int, locations: int) -> nn.Parameter:
+    """The recurrent weights of a feature-tracking cell, (gate, channel, from location, to
+    location): each channel a full map from every location of its own to every other."""
+    return nn.Parameter(torch.randn(gates, channels, locations, locations) / math.sqrt(locations))
+
+
+def track_features(state: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """The feature-tracking recurrence: state (B, C, P) through weights (G, C, P, P) ->
+    (B, G, C, P), each gate's recurrent term; within each channel every location reaches every
+    location, and no channel reads another (FT-RCN here, FT-LSTM in :mod:`edr.rl.paac`)."""
+    return torch.einsum("bcp,gcpq->bgcq", state, weights)
+
+
 class LRCN(nn.Module):
     def __init__(
         self, channels: int, height: int, width: int, num_classes: int, hidden: int = 256
@@ -88,13 +101,9 @@ class FTRCN(_GatedRecurrentHead):
         kernel: int = 3,
     ) -> None:
         super().__init__(channels, num_classes, hidden, kernel)
-        locations = height * width
-        # (gate, channel, from location, to location): each channel tracks its own map.
-        self.recurrent = nn.Parameter(
-            torch.randn(3, hidden, locations, locations) / math.sqrt(locations)
-        )
+        self.recurrent = feature_tracking_weights(3, hidden, height * width)  # z, r, n
 
     def recurrent_term(self, state: torch.Tensor, gate: int) -> torch.Tensor:
         """Within each channel, every location to every location; no channel reads another."""
-        flat = state.flatten(2)  # (B, hidden, h*w)
-        return torch.einsum("bcp,cpq->bcq", flat, self.recurrent[gate]).view_as(state)
+        term = track_features(state.flatten(2), self.recurrent[gate : gate + 1])  # (B, 1, C, P)
+        return term[:, 0].view_as(state)

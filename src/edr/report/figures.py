@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from edr.atomic import atomic_path, write_text_atomic
+from edr.atomic import atomic_path, save_figure, write_text_atomic
 from edr.report.atari import atari_runs, normalised_scores
 from edr.report.recognition import without_ablations
 from edr.report.render import provenance
@@ -243,9 +243,7 @@ def write_figure(
     if fig is None:
         return []
     png = out_dir / "figures" / f"{name}.png"
-    with atomic_path(png) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    save_figure(fig, png, dpi=110)
     caption = [
         f"# {title}",
         "",

@@ -53,6 +53,26 @@ def _per_timescale(value: float | Sequence[float], k: int, name: str) -> torch.T
     return torch.tensor(values, dtype=torch.float32)
 
 
+class KernelArgs(NamedTuple):
+    """An EDR layer's settings as the numba kernels take them (one source for every caller)."""
+
+    gray: bool  # convert RGB to luma first
+    eps: np.float32  # intensity offset
+    alpha: np.ndarray  # (K,) float32 EMA rates
+    beta: np.ndarray  # (K,) float32
+    on_th: np.ndarray  # (K,) float32 ON thresholds (ratio or log form)
+    off_th: np.ndarray  # (K,) float32 OFF thresholds
+    log: bool  # log-ratio form
+    hard: bool  # 0/1 indicators instead of the excess
+    sum_k: bool  # sum the K log-ratios, threshold once
+
+    @classmethod
+    def unused(cls) -> KernelArgs:
+        """Placeholders for a kernel call that computes no EDR."""
+        none = np.zeros(1, np.float32)
+        return cls(False, np.float32(0), none, none, none, none, False, False, False)
+
+
 class EDR(Representation):
     """Retinomorphic event-driven representation, as a learnable layer and a streaming filter.
 
@@ -280,6 +300,18 @@ class EDR(Representation):
             and x.dtype in (torch.uint8, torch.float32)
         )
 
+    def kernel_args(self, in_channels: int) -> KernelArgs:
+        """What the kernels (``edr_kernel``, ``frame_kernel``) take of this layer, in their
+        order, for frames of ``in_channels`` channels."""
+        return KernelArgs(
+            self.color == "gray" and in_channels == 3,
+            np.float32(self.eps),
+            *self.kernel_params(),
+            self.return_form == "log",
+            self.threshold == "hard",
+            self.combine == "sum",
+        )
+
     def kernel_params(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(alpha, beta, on_th, off_th) as float32 arrays, recomputed only when a parameter changes."""
         params = (self.log_tau, self.beta, self.nu_on, self.nu_off)
@@ -308,7 +340,6 @@ class EDR(Representation):
         shape = (b, t, c * k_out * 2, h, w)
         target = buffers.output(out, shape, self.out_dtype, frames.device)
         events = target if buffers.writable(target) else buffers.RECYCLED.empty(shape)
-        alpha, beta, on_th, off_th = self.kernel_params()
         pixels_last = frames.permute(0, 1, 3, 4, 2)  # (B, T, H, W, C), a view
         interleaved = c_in > 1 and pixels_last.is_contiguous()  # as env pixels (H, W, C) come
         if interleaved:
@@ -320,15 +351,7 @@ class EDR(Representation):
             b * t * h * w,
             x.numpy(),
             c_in if interleaved else 0,
-            self.color == "gray" and c_in == 3,
-            np.float32(self.eps),
-            alpha,
-            beta,
-            on_th,
-            off_th,
-            self.return_form == "log",
-            self.threshold == "hard",
-            self.combine == "sum",
+            *self.kernel_args(c_in),
             (ema if source is None else source).view(b, c, k, h * w).numpy(),
             source is not None and source.data_ptr() != ema.data_ptr(),
             ema.view(b, c, k, h * w).numpy(),

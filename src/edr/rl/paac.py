@@ -25,6 +25,8 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+from edr.models.recurrent import feature_tracking_weights, track_features
+
 Core = Literal["lstm", "ftlstm", "none"]
 Init = Literal["orthogonal", "fan_in"]
 
@@ -36,10 +38,7 @@ class FeatureTrackingLSTMCell(nn.Module):
         super().__init__()
         self.channels, self.locations = channels, locations
         self.input_gates = nn.Conv1d(channels, 4 * channels, 1)  # i, f, g, o
-        # (gate, channel, from location, to location)
-        self.recurrent = nn.Parameter(
-            torch.randn(4, channels, locations, locations) / math.sqrt(locations)
-        )
+        self.recurrent = feature_tracking_weights(4, channels, locations)
 
     def forward(
         self, x: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
@@ -48,7 +47,7 @@ class FeatureTrackingLSTMCell(nn.Module):
         b = x.shape[0]
         h, c = (s.view(b, self.channels, self.locations) for s in state)
         gates = self.input_gates(x).view(b, 4, self.channels, self.locations)
-        gates = gates + torch.einsum("bcp,gcpq->bgcq", h, self.recurrent)
+        gates = gates + track_features(h, self.recurrent)  # (B, 4, C, P)
         i, f, g, o = gates.unbind(1)
         c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
         h = torch.sigmoid(o) * torch.tanh(c)

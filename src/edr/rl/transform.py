@@ -23,6 +23,7 @@ from torchrl.envs.transforms.utils import _get_reset
 
 from edr.representations import EDR, EDRState, kernels
 from edr.representations.base import to_float, to_gray
+from edr.representations.edr import KernelArgs
 
 
 class _PerEnvStream(Transform):
@@ -176,22 +177,13 @@ class ObservationFrame(_PerEnvStream):
             x.permute(0, 2, 3, 1).view(n, 1, 1, h * w * c_in))  # fmt: skip
         kernels.launch(
             kernels.frame_kernel, n * h * w, pixels.numpy(), 0 if planar else c_in, (0,) * c_fdr,
-            self.fdr == "gray" and c_in == 3, (0,) * c_edr, *self._edr_args(c_in), ema.numpy(),
+            self.fdr == "gray" and c_in == 3, (0,) * c_edr,
+            *(self.edr.kernel_args(c_in) if self.edr is not None else KernelArgs.unused()),
+            ema.numpy(),
             restart, out.permute(0, 2, 3, 1).view(n, h * w * (c_fdr + c_edr)).numpy(),
         )  # fmt: skip
         increment_version(out)  # written through numpy: autograd must see a ring buffer's reuse
         return out
-
-    def _edr_args(self, c_in: int) -> tuple[Any, ...]:
-        """``frame_kernel``'s EDR arguments, from ``edr_gray`` to ``sum_k`` (none read without EDR)."""
-        if self.edr is None:
-            unused = np.zeros(1, np.float32)
-            return False, np.float32(0), unused, unused, unused, unused, False, False, False
-        edr = self.edr
-        return (
-            edr.color == "gray" and c_in == 3, np.float32(edr.eps), *edr.kernel_params(),
-            edr.return_form == "log", edr.threshold == "hard", edr.combine == "sum",
-        )  # fmt: skip
 
     def _torch_frame(
         self, x: torch.Tensor, ema: torch.Tensor, restart: np.ndarray, out: torch.Tensor

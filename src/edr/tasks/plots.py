@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from edr.atomic import atomic_path
+from edr.atomic import save_figure
 
 
 def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path:
@@ -31,9 +31,7 @@ def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path
     ax_acc.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
     ax_acc.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
     return path
 
 
@@ -48,9 +46,7 @@ def save_confusion(matrix: np.ndarray, classes: Sequence[str], path: Path) -> Pa
         ax.set_yticks(range(len(classes)), classes, fontsize=7)
     ax.set(xlabel="predicted", ylabel="true")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
     return path
 
 
@@ -71,7 +67,5 @@ def save_score_curve(history: Sequence[dict[str, float]], path: Path, title: str
     value.plot(steps, [r.get("train/value_mean", float("nan")) for r in history], "b-")
     value.set(xlabel="env steps", ylabel="critic's mean value")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
     return path

@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt
 import torch
 from tqdm import tqdm
 
-from edr.atomic import atomic_path
+from edr.atomic import save_figure
 from edr.data.synthetic import video_or_scene
 from edr.representations import Representation
 from edr.validate import PositiveInt
@@ -79,9 +79,7 @@ def representation_demo(
     fig.suptitle(f"frame {shown} of {source}", fontsize=9)
     fig.tight_layout()
     picture_path = out_dir / "representations.png"
-    with atomic_path(picture_path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    save_figure(fig, picture_path, dpi=120)
 
     # ---- Figure 3b: one pixel over time ------------------------------------------------------
     fig, axes = plt.subplots(
@@ -99,9 +97,7 @@ def representation_demo(
     fig.suptitle(f"pixel (y={y}, x={x})", fontsize=9)
     fig.tight_layout()
     response_path = out_dir / "pixel_response.png"
-    with atomic_path(response_path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    save_figure(fig, response_path, dpi=120)
 
     log.info("figures: %s, %s", picture_path, response_path)
     metrics.update(
