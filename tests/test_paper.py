@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from edr import bench, tables
-from edr.results import load_runs
+from edr.report.runs import load_runs
 from edr.run import run
 from edr.sweeps import run_tiny_sweeps
 

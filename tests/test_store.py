@@ -188,7 +188,7 @@ def test_one_writer_per_run_folder(cli, tmp_path) -> None:
 def test_a_running_record_whose_process_is_gone_reads_as_interrupted(tmp_path) -> None:
     import json
 
-    from edr.results import load_runs
+    from edr.report.runs import load_runs
 
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / "run.json").write_text(json.dumps({"status": "running", "task": "kth"}))
@@ -197,7 +197,7 @@ def test_a_running_record_whose_process_is_gone_reads_as_interrupted(tmp_path) -
     runs = load_runs([tmp_path]).set_index("record")
     assert runs.loc[str(tmp_path / "a" / "run.json"), "status"] == "interrupted"
     assert runs.loc[str(tmp_path / "b" / "run.json"), "status"] == "unreadable"
-    from edr.results import unfinished
+    from edr.report.runs import unfinished
 
     listed = unfinished(runs.reset_index(), "atari")  # every table lists unreadable records
     assert list(listed["record"]) == [str(tmp_path / "b" / "run.json")]

@@ -27,13 +27,13 @@ from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from edr import CONF_DIR
 from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.records import check_flat, git_revision, machine_info, now, write_record
 from edr.report.published import load_published, lookup
 from edr.store import Resume, hold_folder, log_attempt, plan_attempt
 from edr.validate import ConfigError, PositiveInt, Seed, check_config
 
-CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # ships in the package; ./conf links here
 # The entry point's own keys, checked like a task's arguments.
 INTERNAL_GROUPS = {"hydra", "recognition", "paths"}  # composed by the configs, not picked by users
 ENTRY_KEYS = {"seed": Seed, "threads": PositiveInt | None, "resume": Resume, "scale": str}

@@ -29,6 +29,7 @@ from typing import Any, Literal
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, read_write
 
+from edr.checkpoints import CHECKPOINT
 from edr.identity import (
     IDENTITY_KEYS,
     config_diff,
@@ -37,7 +38,6 @@ from edr.identity import (
     warn_ignored,
 )
 from edr.records import RECORD_NAME, now, read_record
-from edr.tasks.checkpoints import CHECKPOINT
 from edr.validate import ConfigError
 
 ATTEMPTS = "attempts.jsonl"

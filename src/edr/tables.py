@@ -34,8 +34,8 @@ from edr.report.flow_accuracy import flow_accuracy_table
 from edr.report.published import PUBLISHED, load_published
 from edr.report.recognition import ablation_edr, appendix_a_dvs, table2_ucf101, table4_kth
 from edr.report.render import write_table
+from edr.report.runs import load_runs
 from edr.report.speed import atari_cost_table, speed_table
-from edr.results import load_runs
 
 
 def _bench_records(bench_dir: Path, kind: str) -> list[tuple[Path, dict[str, Any]]]:

@@ -11,7 +11,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.results import cells, finished, unfinished
+from edr.report.runs import cells, finished, unfinished
 from edr.rl.settings import INPUT_NAMES
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}

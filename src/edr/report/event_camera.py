@@ -9,7 +9,7 @@ import pandas as pd
 
 from edr.report.published import lookup
 from edr.report.render import Table, mean_std
-from edr.results import cells, finished, unfinished
+from edr.report.runs import cells, finished, unfinished
 
 RATES = ("events_per_s", "bits_per_s", "bits_per_event", "sparsity")
 

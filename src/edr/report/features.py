@@ -11,8 +11,8 @@ import pandas as pd
 import yaml
 from hydra.utils import get_class
 
+from edr import CONF_DIR
 from edr.report.render import Table
-from edr.run import CONF_DIR
 
 
 def _target(config: Path) -> str:

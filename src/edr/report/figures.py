@@ -21,7 +21,7 @@ from edr.atomic import atomic_path, save_figure, write_text_atomic
 from edr.report.atari import atari_runs, normalised_scores
 from edr.report.recognition import without_ablations
 from edr.report.render import provenance
-from edr.results import CELL_KEYS, finished
+from edr.report.runs import CELL_KEYS, finished
 from edr.rl.settings import INPUT_NAMES
 
 Draw = Callable[[], "plt.Figure | None"]

@@ -10,8 +10,8 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
+from edr.report.runs import cells, finished, unfinished
 from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
-from edr.results import cells, finished, unfinished
 
 ACCURACY = "metrics.eval/accuracy"
 ABLATION_KEYS = ("half_lives", "beta", "nu_on", "nu_off", "threshold", "return_form", "combine")

@@ -27,6 +27,13 @@ from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
+from edr.checkpoints import (
+    CHECKPOINT,
+    load_checkpoint,
+    restore,
+    save_atomic,
+    save_checkpoint,
+)
 from edr.rebuild import UntrustedRecord, instantiate_from_record
 from edr.records import read_record
 from edr.representations import EDR
@@ -41,13 +48,6 @@ from edr.rl.settings import (
     LossSettings,
     NetworkSettings,
     OptimSettings,
-)
-from edr.tasks.checkpoints import (
-    CHECKPOINT,
-    load_checkpoint,
-    restore,
-    save_atomic,
-    save_checkpoint,
 )
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger

@@ -21,13 +21,13 @@ from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
+from edr.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, save_checkpoint
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
 from edr.representations import Representation
-from edr.tasks.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, save_checkpoint
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import open_logger
