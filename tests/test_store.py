@@ -231,3 +231,26 @@ def test_a_bad_value_is_one_line_before_any_work(compose_config, overrides, mess
         run(cfg)
     assert message in str(caught.value) and "\n" not in str(caught.value)
     assert not list(tmp_path.rglob("*.avi"))  # nothing decoded or generated
+
+
+def test_corrupt_checkpoint_csv_and_attempts_name_themselves_or_are_survived(tmp_path) -> None:
+    from edr.checkpoints import UnreadableCheckpoint, load_checkpoint
+    from edr.store import log_attempt, outcomes_since
+    from edr.tasks.scalars import rewind_csv_logs
+
+    for content in (b"", b"PK\x03\x04 truncated zip"):
+        (tmp_path / "checkpoint.pt").write_bytes(content)
+        with pytest.raises(
+            UnreadableCheckpoint, match=r"checkpoint\.pt cannot be read .*resume=false"
+        ):
+            load_checkpoint(tmp_path / "checkpoint.pt")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "loss.csv").write_text("1,0.5\n2,0.4\n\x00\x00garbage\n3,0.3\n")
+    rewind_csv_logs(logs, 2)  # a resume from step 2
+    assert (logs / "loss.csv").read_text() == "1,0.5\n2,0.4\n"
+    cell = tmp_path / "cell"
+    cell.mkdir()
+    (cell / "attempts.jsonl").write_text('{"at": "x", "unix": 1, "outc')  # cut short by a crash
+    log_attempt(cell, "ran", "f00")
+    assert outcomes_since(tmp_path, 0)["ran"] == 1

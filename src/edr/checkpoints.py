@@ -50,10 +50,22 @@ def save_checkpoint(path: Path, parts: dict[str, Any], **extra: Any) -> None:
     save_atomic({**payload, "rng": _rng_state(), **extra}, path)
 
 
+class UnreadableCheckpoint(ValueError):
+    """A checkpoint that is empty, truncated or not one; the message names it and the remedy."""
+
+
 def load_checkpoint(path: Path) -> dict[str, Any]:
-    """The payload ``save_checkpoint`` wrote (tensors and plain values only)."""
+    """The payload ``save_checkpoint`` wrote (tensors and plain values only);
+    :class:`UnreadableCheckpoint` naming the file if it cannot be read."""
     log.info("resuming from %s", path)
-    return torch.load(path, weights_only=True)
+    try:
+        return torch.load(path, weights_only=True)
+    except (EOFError, RuntimeError, OSError, ValueError) as error:
+        reason = " ".join(str(error).split()) or type(error).__name__
+        raise UnreadableCheckpoint(
+            f"{path} cannot be read ({reason[:200]}): pass resume=false to start the run over, "
+            "or move the folder away"
+        ) from None
 
 
 def restore(state: dict[str, Any], parts: dict[str, Any]) -> None:

@@ -28,8 +28,9 @@ from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from edr import CONF_DIR
+from edr.checkpoints import UnreadableCheckpoint
 from edr.identity import job_dirname, run_identity, warn_ignored
-from edr.records import check_flat, git_revision, machine_info, now, write_record
+from edr.records import UnreadableRecord, check_flat, git_revision, machine_info, now, write_record
 from edr.report.published import load_published, lookup
 from edr.store import Resume, hold_folder, log_attempt, plan_attempt
 from edr.validate import ConfigError, PositiveInt, Seed, check_config
@@ -203,7 +204,7 @@ def _in_sweep() -> bool:
 def main(cfg: DictConfig) -> None:
     try:
         run(cfg)
-    except ConfigError as error:
+    except (ConfigError, UnreadableRecord, UnreadableCheckpoint) as error:  # one line, no trace
         log.error("%s", error)
         raise SystemExit(2) from None
 

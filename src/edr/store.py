@@ -189,17 +189,33 @@ def log_attempt(out_dir: Path, outcome: str, fingerprint: str, **details: Any) -
             **details,
         }
     )
-    with open(out_dir / ATTEMPTS, "a") as f:
-        f.write(line + "\n")
+    path = out_dir / ATTEMPTS
+    with open(path, "a+b") as f:  # appends go to the end, wherever the reads were
+        size = f.seek(0, os.SEEK_END)
+        if size:
+            f.seek(size - 1)
+            if f.read(1) != b"\n":  # a line a crash cut short ends before this one starts
+                f.write(b"\n")
+        f.write(line.encode() + b"\n")
+
+
+def _attempt(line: str) -> dict[str, Any] | None:
+    """One line of ``attempts.jsonl``; None for a line a crash cut short."""
+    try:
+        attempt = json.loads(line)
+    except ValueError:
+        return None
+    return attempt if isinstance(attempt, dict) and {"unix", "outcome"} <= attempt.keys() else None
 
 
 def outcomes_since(sweep_dir: Path, since: float) -> Counter[str]:
     """The last outcome of every job folder under ``sweep_dir`` attempted after ``since``."""
     counts: Counter[str] = Counter()
     for file in sorted(Path(sweep_dir).glob(f"*/{ATTEMPTS}")):
-        lines = file.read_text().splitlines()
-        if lines and (last := json.loads(lines[-1]))["unix"] >= since:
-            counts[last["outcome"]] += 1
+        attempts = [a for line in file.read_text(errors="replace").splitlines()
+                    if (a := _attempt(line)) is not None]  # fmt: skip
+        if attempts and attempts[-1]["unix"] >= since:
+            counts[attempts[-1]["outcome"]] += 1
     return counts
 
 

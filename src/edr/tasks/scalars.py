@@ -17,10 +17,18 @@ def rewind_csv_logs(log_dir: Path, step: int) -> None:
     """Drop every row after ``step`` from torchrl's CSV scalar files (``step,value`` lines), so a
     resumed run does not log the steps it repeats twice; ``step=0`` empties them."""
     for file in sorted(Path(log_dir).rglob("*.csv")):
-        lines = file.read_text().splitlines()
-        kept = [line for line in lines if line and float(line.split(",", 1)[0]) <= step]
-        if len(kept) != len(lines):
+        lines = file.read_text(errors="replace").splitlines()
+        kept = [line for line in lines if (logged := _step(line)) is not None and logged <= step]
+        if len(kept) != len(lines):  # a garbled line (a crash mid-write) goes too
             write_text_atomic(file, "".join(f"{line}\n" for line in kept))
+
+
+def _step(line: str) -> float | None:
+    """The step of a ``step,value`` line; None for a line that is not one."""
+    try:
+        return float(line.split(",", 1)[0])
+    except ValueError:
+        return None
 
 
 def open_logger(kind: str, out_dir: Path, step: int) -> Logger | None:
