@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from clips import ramp_clip, translating_clip
@@ -65,3 +66,53 @@ def test_dvs_camera_on_off_order_matches_edr() -> None:
     moving = DVSCamera(threshold_on=0.1, threshold_off=0.1)(translating_clip(frames=4))
     assert moving[:, :, 0].sum() > 0 and moving[:, :, 1].sum() > 0
     assert torch.equal(moving, moving.round())
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
+def test_the_simulator_refuses_frames_that_are_not_intensities(bad) -> None:
+
+    frames = np.full((3, 4, 4), 100.0)
+    frames[1, 2, 2] = bad
+    with pytest.raises(ValueError, match="finite intensities >= 0"):
+        DVSSimulator().simulate(frames)
+
+
+def test_edr_refuses_a_meta_frame_and_a_nan_state() -> None:
+    import torch
+
+    from edr.representations import EDR
+
+    edr = EDR()
+    with pytest.raises(ValueError, match="meta device"):
+        edr(torch.empty(1, 2, 1, 4, 4, device="meta"))
+    _, state = edr.step(torch.full((1, 1, 4, 4), 100.0))
+    state.ema[0, 0, 0, 1, 1] = float("nan")
+    with pytest.raises(ValueError, match="state holds NaN"):
+        edr.step(torch.full((1, 1, 4, 4), 100.0), state)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"events": "list"}, "structured numpy array"),
+        ({"x": "float"}, "events x must be integers"),
+        ({"t": "nan"}, "events t must be finite"),
+        ({"n_time_bins": 1.5}, "n_time_bins must be a whole number"),
+        ({"height": -1}, "height must be a positive integer"),
+        ({"dtype": np.uint8}, "counts must not wrap"),
+    ],
+)
+def test_events_to_frames_refuses_malformed_events_and_sizes(change, message) -> None:
+    from edr.representations.dvs import events_to_frames
+
+    t_type = np.float64 if change.get("t") == "nan" else np.int64
+    x_type = np.float32 if change.get("x") == "float" else np.int16
+    dtype = np.dtype([("t", t_type), ("x", x_type), ("y", np.int16), ("p", np.int8)])
+    events = np.zeros(3, dtype)
+    events["t"] = [0, 1, 2]
+    if change.get("t") == "nan":
+        events["t"][1] = np.nan
+    given = events.tolist() if change.get("events") == "list" else events
+    kwargs = {"n_time_bins": change.get("n_time_bins", 2), "dtype": change.get("dtype", np.int16)}
+    with pytest.raises(ValueError, match=message):
+        events_to_frames(given, change.get("height", 4), 4, **kwargs)

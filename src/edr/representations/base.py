@@ -151,6 +151,8 @@ def _check_channels_and_values(x: torch.Tensor, *, channel_dim: int, name: str) 
         )
     if x.numel() == 0:
         raise ValueError(f"{name} is empty: shape {tuple(x.shape)}")
+    if x.device.type == "meta":
+        raise ValueError(f"{name} is on the meta device: it has no values to compute on")
     if x.dtype == torch.uint8:
         return
     if not x.is_floating_point():

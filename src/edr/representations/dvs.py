@@ -103,6 +103,13 @@ class DVSSimulator:
         frames = np.asarray(frames)
         if frames.ndim != 3 or frames.shape[0] < 1:
             raise ValueError(f"frames must be (T, H, W) with T >= 1, got {frames.shape}")
+        if not np.issubdtype(frames.dtype, np.number):
+            raise ValueError(f"frames must be numbers, got {frames.dtype}")
+        if frames.size and not (np.isfinite(frames).all() and frames.min() >= 0):
+            raise ValueError(
+                "frames must be finite intensities >= 0 (0..255); got "
+                + ("NaN or inf" if not np.isfinite(frames).all() else f"min {frames.min():.4g}")
+            )
         t_count, h, w = frames.shape
         rng = np.random.default_rng(self.seed)
         logs = np.log(frames.reshape(t_count, h * w).astype(np.float64) + self.eps)  # (T, P)
@@ -148,10 +155,23 @@ def check_events(events: np.ndarray, height: int, width: int) -> np.ndarray:
     ``EVENT_DTYPE``); polarity 0/1, -1/1 (-1 is OFF) or bool; ``x`` in [0, width), ``y`` in
     [0, height); ``t`` sorted (``np.sort(events, order="t")`` sorts a list that is not).
     """
+    if not isinstance(events, np.ndarray):
+        raise ValueError(
+            f"events must be a structured numpy array (fields t, x, y, p), got "
+            f"{type(events).__name__}"
+        )
+    for name, size in (("height", height), ("width", width)):
+        if isinstance(size, bool) or not isinstance(size, int | np.integer) or size < 1:
+            raise ValueError(f"{name} must be a positive integer, got {size!r}")
     names = getattr(events.dtype, "names", None) or ()
     missing = [f for f in ("t", "x", "y", "p") if f not in names]
     if missing:
         raise ValueError(f"events need the fields t, x, y, p; missing {missing}")
+    for field in ("x", "y"):
+        if not np.issubdtype(events.dtype[field], np.integer):
+            raise ValueError(f"events {field} must be integers, got {events.dtype[field]}")
+    if np.issubdtype(events.dtype["t"], np.floating) and not np.isfinite(events["t"]).all():
+        raise ValueError("events t must be finite (NaN or inf found)")
     for field, size, axis in (("x", width, "width"), ("y", height, "height")):
         if len(events) and (events[field].min() < 0 or events[field].max() >= size):
             raise ValueError(
@@ -246,6 +266,14 @@ def events_to_frames(
         raise ValueError("give exactly one of time_window, event_count, n_time_bins, n_event_bins")
     if chosen[0] <= 0:
         raise ValueError(f"the window, count or number of bins must be positive, got {chosen[0]}")
+    for name, value in (("event_count", event_count), ("n_time_bins", n_time_bins),
+                        ("n_event_bins", n_event_bins)):  # fmt: skip
+        if value is not None and (isinstance(value, bool) or value != int(value)):
+            raise ValueError(f"{name} must be a whole number, got {value}")
+    if not np.issubdtype(np.dtype(dtype), np.signedinteger) and np.dtype(dtype).kind != "f":
+        raise ValueError(
+            f"dtype must be a signed integer or float type (counts must not wrap), got {dtype}"
+        )
     events = check_events(events, height, width)
     if not len(events) and (time_window is None or start_time is None or end_time is None):
         raise ValueError("no events: binning them needs time_window, start_time and end_time")

@@ -223,6 +223,8 @@ class EDR(Representation):
         shape = (b, self.state_channels(c), self.k, h, w)
         if state is not None and tuple(state.ema.shape) != shape:
             raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")
+        if state is not None and not torch.isfinite(state.ema).all():
+            raise ValueError("state holds NaN or inf: start again from state=None (or reset)")
         if reset is not None:
             reset = torch.as_tensor(reset, dtype=torch.bool, device=frame.device).reshape(-1)
             if reset.numel() != b:
