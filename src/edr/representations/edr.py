@@ -33,6 +33,7 @@ from edr.representations.base import (
     on_off_picture,
     to_gray,
 )
+from edr.representations.edr_grad import fused_events
 from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, check_arguments
 
 OUT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16,
@@ -191,6 +192,11 @@ class EDR(Representation):
         if self.can_fuse(frames):
             ema = torch.empty((b, self.state_channels(c), self.k, h, w))
             return self._fused(frames, ema, np.ones(b, np.bool_), out)
+        if self.trains_fused(frames):
+            events = self._fused_train(frames)
+            if out is None:
+                return events.to(self.out_dtype)
+            return buffers.output(out, shape, self.out_dtype, frames.device).copy_(events)
         state, outs = None, []
         for i in range(t):
             out_t, state = self.step(frames[:, i], state)
@@ -285,10 +291,10 @@ class EDR(Representation):
         else:
             response = ratio**beta
         on_th, off_th = (v.to(intensity).view(1, 1, -1, 1, 1) for v in self.thresholds())
-        if self.threshold == "hard":
-            on, off = (response > on_th).to(response.dtype), (response < off_th).to(response.dtype)
-        else:
-            on, off = torch.relu(response - on_th), torch.relu(off_th - response)
+        on, off = torch.relu(response - on_th), torch.relu(off_th - response)
+        if self.threshold == "hard":  # 0/1 events, with the soft ones' gradient as surrogate
+            on = on + ((response > on_th).to(on.dtype) - on).detach()
+            off = off + ((response < off_th).to(off.dtype) - off).detach()
         events = torch.stack((on, off), dim=3)  # (B, C', K', 2, H, W)
         return events.reshape(b, -1, h, w).to(self.out_dtype), EDRState(ema)
 
@@ -301,6 +307,26 @@ class EDR(Representation):
             and x.device.type == "cpu"
             and x.dtype in (torch.uint8, torch.float32)
         )
+
+    def trains_fused(self, x: torch.Tensor) -> bool:
+        """Whether ``forward`` takes the fused training path (:mod:`edr.representations.edr_grad`):
+        gradients wanted, on the CPU; the torch path serves GPUs and ``fast=False``."""
+        return (
+            self.fast
+            and torch.is_grad_enabled()
+            and (x.requires_grad or self.learnable)
+            and x.device.type == "cpu"
+        )
+
+    def _fused_train(self, frames: torch.Tensor) -> torch.Tensor:
+        """(B, T, C, H, W) -> (B, T, C' * 2 * K', H, W) in the compute dtype, differentiable."""
+        b, t = frames.shape[:2]
+        intensity = self._intensity(frames.flatten(0, 1)).unflatten(0, (b, t))  # (B, T, C', H, W)
+        on_th, off_th = self.thresholds()
+        return fused_events(
+            intensity, self.alpha, self.beta, on_th, off_th, log_form=self.return_form == "log",
+            hard=self.threshold == "hard", sum_k=self.combine == "sum",
+        )  # fmt: skip
 
     def kernel_args(self, in_channels: int) -> KernelArgs:
         """What the kernels (``edr_kernel``, ``frame_kernel``) take of this layer, in their
