@@ -87,6 +87,13 @@ def stream(edr: EDR, frames: torch.Tensor, inplace: bool = False) -> None:
         _, state = edr.step(frames[:, t], state, inplace=inplace)
 
 
+def train_step(edr: EDR, clip: torch.Tensor) -> None:
+    """A learnable EDR's forward and backward through the clip (the gradient of the events'
+    sum reaches its half-life, beta and thresholds), as a training step would run it."""
+    edr.zero_grad(set_to_none=True)
+    edr(clip).sum().backward()
+
+
 @dataclass
 class Job:
     """One row to time: ``call()`` consumes ``frames`` input frames of ``frame_size``."""
@@ -173,6 +180,19 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
         whole("EDR K=3 soft gray", "fused numba kernel", EDR(half_lives=K3, color="gray")),
         whole("EDR K=1 soft RGB", "fused numba kernel", EDR()),
         whole("EDR K=1 soft gray", "torch ops (autograd path)", EDR(color="gray", fast=False)),
+        *(
+            Job(
+                "EDR K=1 soft gray, learnable",
+                f"{label}, forward+backward",
+                lambda rep=rep: train_step(rep, clip),
+                t,
+                size,
+            )
+            for label, rep in (
+                ("fused kernels", EDR(color="gray", learnable=True)),
+                ("torch ops", EDR(color="gray", learnable=True, fast=False)),
+            )
+        ),
         *(
             Job(f"{name}, busy neighbour", f"fused numba kernel, {threads}", call, t, size, True)
             for name, rep in (("EDR K=1 soft gray", gray), ("GrayDiff", GrayDiff()))

@@ -47,6 +47,9 @@ def ratio_lines(rows: list[dict[str, Any]], published: dict[str, Any]) -> list[s
     edr = bench_fps(rows, "EDR K=1 soft gray", "fused numba kernel")
     edr_k3 = bench_fps(rows, "EDR K=3 soft gray")
     edr_stream = bench_fps(rows, "EDR K=1 soft gray, streaming")
+    learnable = "EDR K=1 soft gray, learnable"
+    train_fused = bench_fps(rows, learnable, "fused kernels, forward+backward")
+    train_torch = bench_fps(rows, learnable, "torch ops, forward+backward")
     gray_diff = bench_fps(rows, "GrayDiff")
     tvl1, farneback = bench_fps(rows, "TV-L1 flow"), bench_fps(rows, "Farneback flow")
     brox = bench_fps(rows, "Brox flow")
@@ -73,6 +76,8 @@ def ratio_lines(rows: list[dict[str, Any]], published: dict[str, Any]) -> list[s
         f"| EDR K=1 / GrayDiff | {_ratio(edr, gray_diff, '.2f')} | {cite(published.get('edr_over_graydiff'))} |",
         f"| EDR K=1 streaming (per frame) / GrayDiff (per clip) | {_ratio(edr_stream, gray_diff, '.2f')} | — |",
         f"| EDR K=3 / GrayDiff | {_ratio(edr_k3, gray_diff, '.2f')} | — |",
+        f"| EDR K=1 learnable, forward+backward (fused) / inference | {_ratio(train_fused, edr, '.3f')} | — |",
+        f"| EDR K=1 learnable, forward+backward: fused / torch ops | {_ratio(train_fused, train_torch, '.1f')}x | — |",
         f"| EDR K=1 / Brox | {_ratio(edr, brox, ',.0f')}x | {cite(published.get('edr_over_optical_flow'))} |",
         f"| EDR K=1 / TV-L1 | {_ratio(edr, tvl1, ',.0f')}x | — |",
         f"| EDR K=1 / Farneback | {_ratio(edr, farneback, ',.0f')}x | — |",
