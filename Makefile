@@ -36,7 +36,7 @@ paper-tiny: setup
 test: setup
 	$(BIN)/ruff check src tests
 	$(BIN)/ruff format --check src tests
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # The edit loop: everything but the tests marked slow (over 10 s) and learning (training runs).
 test-fast: setup

@@ -63,6 +63,7 @@ def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
     assert "nope" in result.stderr and "representation" in result.stderr
 
 
+@pytest.mark.slow
 def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
     bench.main(
         ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0", "--frame-stack", "2",

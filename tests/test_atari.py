@@ -57,6 +57,7 @@ def test_ft_lstm_recurrence_stays_within_channels() -> None:
     assert net.cell.recurrent.shape == (4, 32, 81, 81)  # (gate, channel, location, location)
 
 
+@pytest.mark.slow
 def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> None:
     overrides = ("task=atari", "debug=tiny", "representation.color=gray")
     real_returns, calls = atari.n_step_returns, {"n": 0}
