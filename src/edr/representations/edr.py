@@ -33,7 +33,7 @@ from edr.representations.base import (
     on_off_picture,
     to_gray,
 )
-from edr.representations.edr_grad import fused_events
+from edr.representations.edr_grad import fused_events, intensities
 from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, check_arguments
 
 OUT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16,
@@ -320,8 +320,12 @@ class EDR(Representation):
 
     def _fused_train(self, frames: torch.Tensor) -> torch.Tensor:
         """(B, T, C, H, W) -> (B, T, C' * 2 * K', H, W) in the compute dtype, differentiable."""
-        b, t = frames.shape[:2]
-        intensity = self._intensity(frames.flatten(0, 1)).unflatten(0, (b, t))  # (B, T, C', H, W)
+        b, t, c = frames.shape[:3]
+        if frames.requires_grad:  # EDR after a learned layer: torch differentiates the luma
+            intensity = self._intensity(frames.flatten(0, 1)).unflatten(0, (b, t))
+        else:
+            gray = self.color == "gray" and c == 3
+            intensity = intensities(frames, gray, self.eps, self._compute_dtype)  # (B, T, C', H, W)
         on_th, off_th = self.thresholds()
         return fused_events(
             intensity, self.alpha, self.beta, on_th, off_th, log_form=self.return_form == "log",

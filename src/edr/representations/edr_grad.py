@@ -16,7 +16,6 @@ gradient as their surrogate (``d ON / d r = [r > on]``, ``d OFF / d r = -[r < of
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -24,8 +23,42 @@ import torch
 from numba import njit, prange
 
 from edr.representations import kernels
+from edr.representations.base import GRAY_WEIGHTS
 
 CHUNK = 256  # pixels a job runs through time together (vectorised across them)
+
+
+@njit(parallel=True, cache=True)
+def intensity_kernel(x, gray, eps, out):
+    """x (B, T, C, P) uint8 or float -> out (B, T, C', P) = luma (``gray``) or x, + eps."""
+    n_b, n_t, _, n_p = x.shape
+    w_r, w_g, w_b = GRAY_WEIGHTS
+    for bt in prange(n_b * n_t):
+        b, t = bt // n_t, bt % n_t
+        for c in range(out.shape[2]):
+            dst = out[b, t, c]
+            if gray:
+                for p in range(n_p):
+                    dst[p] = w_r * x[b, t, 0, p] + w_g * x[b, t, 1, p] + w_b * x[b, t, 2, p] + eps
+            else:
+                for p in range(n_p):
+                    dst[p] = x[b, t, c, p] + eps
+
+
+def intensities(frames: torch.Tensor, gray: bool, eps: float, dtype: torch.dtype) -> torch.Tensor:
+    """(B, T, C, H, W) frames that need no gradient -> (B, T, C', H, W) intensities + eps in
+    ``dtype`` (luma when ``gray``), in one pass (torch's conversion of uint8 video took longer
+    than the EDR kernels themselves)."""
+    b, t, c, h, w = frames.shape
+    out = torch.empty((b, t, 1 if gray else c, h, w), dtype=dtype)
+    x = frames.contiguous().view(b, t, c, h * w)
+    kernels.launch(intensity_kernel, b * t * h * w, x.numpy(), gray, dtype_eps(eps, dtype),
+                   out.view(b, t, -1, h * w).numpy())  # fmt: skip
+    return out
+
+
+def dtype_eps(eps: float, dtype: torch.dtype) -> np.floating:
+    return np.float64(eps) if dtype == torch.float64 else np.float32(eps)
 
 
 @njit(inline="always")
@@ -36,15 +69,11 @@ def _job(job, channels, n_chunks, pixels):
     return b, c, lo, min(pixels, lo + CHUNK)
 
 
-@njit(inline="always")
-def _events(r, on_th, off_th, hard):
-    """(ON, OFF) of a response ``r``."""
-    if hard:
-        return (1.0 if r > on_th else 0.0), (1.0 if r < off_th else 0.0)
-    return max(r - on_th, 0.0), max(off_th - r, 0.0)
+# The kernels loop over a chunk's contiguous pixels innermost, in the intensities' own dtype,
+# branch-free where they can: LLVM vectorises them (fastmath lets it reorder the sums).
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, fastmath=True)
 def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k, ema, out):
     """intensity (B, T, C, P) -> ema (B, T, C, K, P) and events out (B, T, C, K', 2, P)."""
     n_b, n_t, n_c, n_p = intensity.shape
@@ -52,45 +81,43 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
     n_chunks = (n_p + CHUNK - 1) // CHUNK
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
+        zero = intensity[b, 0, c, lo] * 0
+        acc = np.empty(hi - lo, intensity.dtype)
         for t in range(n_t):
+            now = intensity[b, t, c, lo:hi]
+            acc[:] = zero
             for k in range(n_k):
-                a = alpha[k]
-                for p in range(lo, hi):
-                    prev = intensity[b, 0, c, p] if t == 0 else ema[b, t - 1, c, k, p]
-                    ema[b, t, c, k, p] = prev + a * (intensity[b, t, c, p] - prev)
+                prev = intensity[b, 0, c, lo:hi] if t == 0 else ema[b, t - 1, c, k, lo:hi]
+                cur = ema[b, t, c, k, lo:hi]
+                a, bk = alpha[k], beta[k]
+                on, off = (
+                    out[b, t, c, k % out.shape[3], 0, lo:hi],
+                    out[b, t, c, k % out.shape[3], 1, lo:hi],
+                )
+                for j in range(hi - lo):
+                    e = prev[j] + a * (now[j] - prev[j])
+                    cur[j] = e
+                    x = bk * np.log(now[j] / e)
+                    if sum_k:
+                        acc[j] += x
+                    else:
+                        r = x if log_form else np.exp(x)
+                        on[j] = one_if(r > on_th[k], zero) if hard else max(r - on_th[k], zero)
+                        off[j] = one_if(r < off_th[k], zero) if hard else max(off_th[k] - r, zero)
             if sum_k:
-                for p in range(lo, hi):
-                    s = 0.0
-                    for k in range(n_k):
-                        s += beta[k] * math.log(intensity[b, t, c, p] / ema[b, t, c, k, p])
-                    r = s if log_form else math.exp(s)
-                    out[b, t, c, 0, 0, p], out[b, t, c, 0, 1, p] = _events(
-                        r, on_th[0], off_th[0], hard
-                    )
-            else:
-                for k in range(n_k):
-                    for p in range(lo, hi):
-                        log_ratio = math.log(intensity[b, t, c, p] / ema[b, t, c, k, p])
-                        r = beta[k] * log_ratio if log_form else math.exp(beta[k] * log_ratio)
-                        out[b, t, c, k, 0, p], out[b, t, c, k, 1, p] = _events(
-                            r, on_th[k], off_th[k], hard
-                        )
+                on, off = out[b, t, c, 0, 0, lo:hi], out[b, t, c, 0, 1, lo:hi]
+                for j in range(hi - lo):
+                    r = acc[j] if log_form else np.exp(acc[j])
+                    on[j] = one_if(r > on_th[0], zero) if hard else max(r - on_th[0], zero)
+                    off[j] = one_if(r < off_th[0], zero) if hard else max(off_th[0] - r, zero)
 
 
 @njit(inline="always")
-def _response_grad(r, g_on, g_off, on_th, off_th):
-    """d loss / d r from the events' gradients, and the thresholds' (surrogate for hard)."""
-    g_r, g_on_th, g_off_th = 0.0, 0.0, 0.0
-    if r > on_th:
-        g_r += g_on
-        g_on_th -= g_on
-    if r < off_th:
-        g_r -= g_off
-        g_off_th += g_off
-    return g_r, g_on_th, g_off_th
+def one_if(condition, zero):
+    return zero + 1 if condition else zero
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, fastmath=True)
 def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k, grad_out,
                     grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
     """One reverse-time scan per pixel: grad_in (B, T, C, P), and per job the partial sums of
@@ -100,54 +127,67 @@ def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k,
     n_chunks = (n_p + CHUNK - 1) // CHUNK
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
-        carry = np.zeros((n_k, hi - lo), intensity.dtype)  # g_e(t+1) (1 - a): to e(t)
-        g_e = np.zeros(n_k, intensity.dtype)
+        n = hi - lo
+        zero = intensity[b, 0, c, lo] * 0
+        carry = np.zeros((n_k, n), intensity.dtype)  # g_e(t+1) (1 - a): what e(t) gets
+        g_i = np.empty(n, intensity.dtype)
+        g_s = np.empty(n, intensity.dtype)  # sum_k: d loss / d (the summed log response)
         for t in range(n_t - 1, -1, -1):
-            for j in range(hi - lo):
-                p = lo + j
-                i = intensity[b, t, c, p]
-                g_i = 0.0
-                if sum_k:
-                    s = 0.0
+            now = intensity[b, t, c, lo:hi]
+            g_i[:] = zero
+            if sum_k:
+                g_on_out, g_off_out = grad_out[b, t, c, 0, 0, lo:hi], grad_out[b, t, c, 0, 1, lo:hi]
+                d_on, d_off = zero, zero
+                for j in range(n):
+                    x = zero
                     for k in range(n_k):
-                        s += beta[k] * math.log(i / ema[b, t, c, k, p])
-                    r = s if log_form else math.exp(s)
-                    g_r, d_on, d_off = _response_grad(
-                        r, grad_out[b, t, c, 0, 0, p], grad_out[b, t, c, 0, 1, p], on_th[0],
-                        off_th[0],
-                    )  # fmt: skip
-                    g_on[job, 0] += d_on
-                    g_off[job, 0] += d_off
-                    g_s = g_r if log_form else g_r * r
-                    for k in range(n_k):
-                        e = ema[b, t, c, k, p]
-                        g_beta[job, k] += g_s * math.log(i / e)
-                        g_i += g_s * beta[k] / i
-                        g_e[k] = -g_s * beta[k] / e
-                else:
-                    for k in range(n_k):
-                        e = ema[b, t, c, k, p]
-                        log_ratio = math.log(i / e)
-                        r = beta[k] * log_ratio if log_form else math.exp(beta[k] * log_ratio)
-                        g_r, d_on, d_off = _response_grad(
-                            r, grad_out[b, t, c, k, 0, p], grad_out[b, t, c, k, 1, p], on_th[k],
-                            off_th[k],
-                        )  # fmt: skip
-                        g_on[job, k] += d_on
-                        g_off[job, k] += d_off
+                        x += beta[k] * np.log(now[j] / ema[b, t, c, k, lo + j])
+                    r = x if log_form else np.exp(x)
+                    above, below = r > on_th[0], r < off_th[0]
+                    g_r = (g_on_out[j] if above else zero) - (g_off_out[j] if below else zero)
+                    d_on -= g_on_out[j] if above else zero
+                    d_off += g_off_out[j] if below else zero
+                    g_s[j] = g_r if log_form else g_r * r
+                g_on[job, 0] += d_on
+                g_off[job, 0] += d_off
+            for k in range(n_k):
+                a, bk = alpha[k], beta[k]
+                cur = ema[b, t, c, k, lo:hi]
+                prev = ema[b, t - 1, c, k, lo:hi] if t > 0 else cur
+                kk = 0 if sum_k else k
+                g_on_out, g_off_out = (
+                    grad_out[b, t, c, kk, 0, lo:hi],
+                    grad_out[b, t, c, kk, 1, lo:hi],
+                )
+                d_alpha, d_beta, d_on, d_off = zero, zero, zero, zero
+                for j in range(n):
+                    e = cur[j]
+                    lr = np.log(now[j] / e)
+                    if sum_k:
+                        g_x = g_s[j]
+                    else:
+                        x = bk * lr
+                        r = x if log_form else np.exp(x)
+                        above, below = r > on_th[k], r < off_th[k]
+                        g_r = (g_on_out[j] if above else zero) - (g_off_out[j] if below else zero)
+                        d_on -= g_on_out[j] if above else zero
+                        d_off += g_off_out[j] if below else zero
                         g_x = g_r if log_form else g_r * r  # d loss / d (beta ln(I / e))
-                        g_beta[job, k] += g_x * log_ratio
-                        g_i += g_x * beta[k] / i
-                        g_e[k] = -g_x * beta[k] / e
-                for k in range(n_k):
-                    total = g_e[k] + carry[k, j]
+                    d_beta += g_x * lr
+                    g_i[j] += g_x * bk / now[j]
+                    total = carry[k, j] - g_x * bk / e
                     if t > 0:
-                        g_alpha[job, k] += total * (i - ema[b, t - 1, c, k, p])
-                        g_i += total * alpha[k]
-                        carry[k, j] = total * (1.0 - alpha[k])
+                        d_alpha += total * (now[j] - prev[j])
+                        g_i[j] += total * a
+                        carry[k, j] = total * (1 - a)
                     else:  # e(0) = I(0)
-                        g_i += total
-                grad_in[b, t, c, p] = g_i
+                        g_i[j] += total
+                g_alpha[job, k] += d_alpha
+                g_beta[job, k] += d_beta
+                if not sum_k:
+                    g_on[job, k] += d_on
+                    g_off[job, k] += d_off
+            grad_in[b, t, c, lo:hi] = g_i
 
 
 class FusedEDRFunction(torch.autograd.Function):
