@@ -104,3 +104,22 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
         f"(FDR: {record['train_fps_fdr']:,.0f}; {record['train_fps_fdr_steady']:,.0f} steady)"
         in row
     )
+
+
+def test_a_results_folder_that_cannot_be_written_is_one_line(monkeypatch, capsys) -> None:
+    """Hydra opens the run's log before the run starts; a read-only folder fails there (root,
+    who runs these tests, writes anywhere: Hydra's failure is raised here as it raises it)."""
+    import edr.run
+
+    def hydra_main() -> None:
+        try:
+            raise PermissionError(13, "Permission denied", "/ro/results/runs/kth/x/run.log")
+        except PermissionError as error:
+            raise ValueError("Unable to configure handler 'file'") from error
+
+    monkeypatch.setattr(edr.run, "main", hydra_main)
+    with pytest.raises(SystemExit) as stopped:
+        edr.run.cli()
+    assert stopped.value.code == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "Permission denied" in line and "run.log" in line and "EDR_RESULTS" in line

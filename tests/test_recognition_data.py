@@ -183,3 +183,18 @@ def test_event_files_round_trip(tmp_path) -> None:
     assert list_recordings(tmp_path, ("boxing", "walking")) == [
         (tmp_path / "boxing" / "rec.npz", 0)
     ]
+
+
+def test_a_half_truncated_video_is_an_error_naming_it_and_the_counts(tmp_path) -> None:
+    import numpy as np
+
+    from edr.data.video import read_video, write_video
+
+    frames = np.random.default_rng(0).integers(0, 255, (16, 3, 32, 48), dtype=np.uint8)
+    whole = write_video(tmp_path / "whole.avi", frames)
+    assert read_video(whole).shape[0] == 16
+    data = whole.read_bytes()
+    (tmp_path / "half.avi").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=r"half\.avi decodes \d+ of the 16 frames"):
+        read_video(tmp_path / "half.avi")
+    assert read_video(whole, max_frames=5).shape[0] == 5  # asking for fewer is not truncation

@@ -224,6 +224,16 @@ def cli() -> None:
     signal.signal(signal.SIGTERM, _terminate)
     try:
         main()
+    except ValueError as error:  # Hydra could not open the run's log file: a folder not writable
+        if "Unable to configure handler" not in str(error):
+            raise
+        cause = error.__cause__ or error
+        print(
+            f"edr-run: cannot write the run's log in its folder ({cause}): make the results "
+            "folder writable, or move results with EDR_RESULTS=<folder> (or paths.results=...)",
+            file=sys.stderr,
+        )
+        raise SystemExit(2) from None
     except KeyboardInterrupt as error:
         print(
             "\ninterrupted: run the same command again to resume "

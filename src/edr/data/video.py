@@ -15,13 +15,17 @@ def read_video(
     max_frames: int | None = None,
     size: tuple[int, int] | None = None,
 ) -> torch.Tensor:
-    """Decode a video to (T, 3, H, W) uint8 RGB; ``size=(width, height)`` resizes each frame."""
+    """Decode a video to (T, 3, H, W) uint8 RGB; ``size=(width, height)`` resizes each frame.
+
+    A file that decodes clearly fewer frames than its container declares (truncated, or
+    corrupt part way) is a ``ValueError`` naming it and both counts, not a shorter clip."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video not found: {path}")
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise ValueError(f"cannot open video {path}: not a video OpenCV can decode")
+    declared = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))  # 0 or less: not stated
     frames = []
     try:
         while max_frames is None or len(frames) < max_frames:
@@ -35,6 +39,13 @@ def read_video(
         capture.release()
     if not frames:
         raise ValueError(f"video {path} has no decodable frames (corrupt or empty file)")
+    wanted = declared if max_frames is None else min(declared, max_frames)
+    # Containers' counts can be estimates off by a frame or two; half a file is not that.
+    if declared > 0 and len(frames) < 0.95 * wanted - 1:
+        raise ValueError(
+            f"video {path} decodes {len(frames)} of the {declared} frames its container declares "
+            "(truncated or corrupt part way): replace the file"
+        )
     return torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()  # (T, 3, H, W)
 
 
