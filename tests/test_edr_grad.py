@@ -18,6 +18,7 @@ VARIANTS = [
     {"half_lives": (1.0, 3.8), "combine": "sum"},
     {"half_lives": (1.0, 3.8), "combine": "sum", "return_form": "log", "threshold": "hard"},
     {"color": "gray"},
+    {"half_lives": (1.0, 3.8), "bptt_window": 3},  # truncated backpropagation through time
 ]
 
 
@@ -72,7 +73,7 @@ def test_gradcheck_of_the_fused_function(log_form: bool, sum_k: bool) -> None:
     assert torch.autograd.gradcheck(events, (intensity, *params), eps=1e-6, atol=1e-5)
 
 
-@pytest.mark.parametrize("variant", VARIANTS[:6], ids=str)
+@pytest.mark.parametrize("variant", VARIANTS[:6], ids=str)  # the reference has no window
 def test_fused_training_forward_equals_the_papers_equations(variant) -> None:
     edr = EDR(learnable=True, out_dtype="float64", **variant)
     clip = _clip(torch.float64, channels=1)
@@ -108,3 +109,17 @@ def test_learning_recovers_a_half_life_from_a_wrong_start() -> None:
         loss.backward()
         optim.step()
     assert abs(learner.half_lives.item() - 3.8) < 0.05, learner.half_lives.item()
+
+
+def test_the_gradient_study_writes_a_record_and_its_table(tmp_path, capsys) -> None:
+    import json
+
+    from edr import edr_gradients
+
+    edr_gradients.main(["--seeds", "2", "--steps", "2", "--size", "24", "--out-dir", str(tmp_path)])
+    (record,) = tmp_path.glob("edr_gradients_*.json")
+    settings = json.loads(record.read_text())["settings"]
+    assert [(s["frames"], s["window"]) for s in settings] == [(60, None), (60, 10), (250, None),
+                                                              (250, 10)]  # fmt: skip
+    assert all(r["first_grad_norm"] > 0 for s in settings for r in s["runs"])
+    assert "| 250 | full | 2 |" in capsys.readouterr().out

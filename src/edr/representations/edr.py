@@ -34,7 +34,7 @@ from edr.representations.base import (
     to_gray,
 )
 from edr.representations.edr_grad import fused_events, intensities
-from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, check_arguments
+from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, PositiveInt, check_arguments
 
 OUT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16,
               "float64": torch.float64}  # fmt: skip
@@ -107,6 +107,7 @@ class EDR(Representation):
         learnable: bool = False,
         color: Literal["keep", "gray"] = "keep",
         fast: bool = True,
+        bptt_window: PositiveInt | None = None,
         out_dtype: Literal["float32", "float16", "bfloat16", "float64"] = "float32",
     ) -> None:
         super().__init__()
@@ -132,6 +133,7 @@ class EDR(Representation):
             color,
         )
         self.eps, self.learnable, self.fast = float(eps), learnable, fast
+        self.bptt_window = bptt_window  # training: gradients cross at most this many frames
         self.out_dtype = OUT_DTYPES[out_dtype]
         self._compute_dtype = torch.float64 if out_dtype == "float64" else torch.float32
         self.k = k
@@ -199,6 +201,8 @@ class EDR(Representation):
             return buffers.output(out, shape, self.out_dtype, frames.device).copy_(events)
         state, outs = None, []
         for i in range(t):
+            if state is not None and self.bptt_window and i % self.bptt_window == 0:
+                state = EDRState(state.ema.detach())  # truncated backpropagation through time
             out_t, state = self.step(frames[:, i], state)
             outs.append(out_t)
         if out is None:
@@ -330,6 +334,7 @@ class EDR(Representation):
         return fused_events(
             intensity, self.alpha, self.beta, on_th, off_th, log_form=self.return_form == "log",
             hard=self.threshold == "hard", sum_k=self.combine == "sum",
+            window=self.bptt_window or 0,
         )  # fmt: skip
 
     def kernel_args(self, in_channels: int) -> KernelArgs:

@@ -118,10 +118,12 @@ def one_if(condition, zero):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k, grad_out,
-                    grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
+def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k, window,
+                    grad_out, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
     """One reverse-time scan per pixel: grad_in (B, T, C, P), and per job the partial sums of
-    the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off (jobs, K')."""
+    the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off (jobs, K'). ``window``
+    > 0: the EMA's gradient does not cross from frame t to t - 1 where t is a multiple of it
+    (truncated backpropagation through time, as if e(t - 1) were a constant)."""
     n_b, n_t, n_c, n_p = intensity.shape
     n_k = alpha.shape[0]
     n_chunks = (n_p + CHUNK - 1) // CHUNK
@@ -135,6 +137,7 @@ def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k,
         for t in range(n_t - 1, -1, -1):
             now = intensity[b, t, c, lo:hi]
             g_i[:] = zero
+            cut = window > 0 and t % window == 0
             if sum_k:
                 g_on_out, g_off_out = grad_out[b, t, c, 0, 0, lo:hi], grad_out[b, t, c, 0, 1, lo:hi]
                 d_on, d_off = zero, zero
@@ -179,7 +182,7 @@ def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k,
                     if t > 0:
                         d_alpha += total * (now[j] - prev[j])
                         g_i[j] += total * a
-                        carry[k, j] = total * (1 - a)
+                        carry[k, j] = zero if cut else total * (1 - a)
                     else:  # e(0) = I(0)
                         g_i[j] += total
                 g_alpha[job, k] += d_alpha
@@ -196,7 +199,7 @@ class FusedEDRFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx: Any, intensity, alpha, beta, on_th, off_th, log_form: bool, hard: bool,
-                sum_k: bool) -> torch.Tensor:  # fmt: skip
+                sum_k: bool, window: int = 0) -> torch.Tensor:  # fmt: skip
         b, t, c, p = intensity.shape
         k, k_out = alpha.shape[0], on_th.shape[0]
         ema = intensity.new_empty((b, t, c, k, p))
@@ -205,13 +208,13 @@ class FusedEDRFunction(torch.autograd.Function):
         kernels.launch(forward_kernel, b * t * p * c, intensity.detach().numpy(), *params,
                        log_form, hard, sum_k, ema.numpy(), out.numpy())  # fmt: skip
         ctx.save_for_backward(intensity, ema, alpha, beta, on_th, off_th)
-        ctx.flags = (log_form, sum_k)
+        ctx.flags = (log_form, sum_k, window)
         return out
 
     @staticmethod
     def backward(ctx: Any, grad_out: torch.Tensor):
         intensity, ema, alpha, beta, on_th, off_th = ctx.saved_tensors
-        log_form, sum_k = ctx.flags
+        log_form, sum_k, window = ctx.flags
         b, t, c, p = intensity.shape
         jobs = b * c * ((p + CHUNK - 1) // CHUNK)
         dtype = intensity.dtype
@@ -221,12 +224,12 @@ class FusedEDRFunction(torch.autograd.Function):
         params = [v.detach().to(dtype).contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(
             backward_kernel, b * t * p * c, intensity.detach().numpy(), ema.numpy(), *params,
-            log_form, sum_k, grad_out.to(dtype).contiguous().numpy(), grad_in.numpy(),
+            log_form, sum_k, window, grad_out.to(dtype).contiguous().numpy(), grad_in.numpy(),
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
         sums = [g.sum(0).to(v.dtype) for g, v in zip((g_alpha, g_beta, g_on, g_off),
                                                       (alpha, beta, on_th, off_th), strict=True)]  # fmt: skip
-        return (grad_in, *sums, None, None, None)
+        return (grad_in, *sums, None, None, None, None)
 
 
 def fused_events(
@@ -239,6 +242,7 @@ def fused_events(
     log_form: bool,
     hard: bool,
     sum_k: bool,
+    window: int = 0,
 ) -> torch.Tensor:
     """Differentiable EDR events of intensities (B, T, C, H, W) (offset by eps) ->
     (B, T, C * K' * 2, H, W), channels ordered as :class:`EDR`'s (channel, timescale, ON/OFF)."""
@@ -246,6 +250,6 @@ def fused_events(
     dtype = intensity.dtype
     out = FusedEDRFunction.apply(
         intensity.contiguous().view(b, t, c, h * w), alpha.to(dtype), beta.to(dtype),
-        on_th.to(dtype), off_th.to(dtype), log_form, hard, sum_k,
+        on_th.to(dtype), off_th.to(dtype), log_form, hard, sum_k, window,
     )  # fmt: skip
     return out.view(b, t, -1, h, w)
