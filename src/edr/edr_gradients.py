@@ -67,16 +67,13 @@ def table(record: dict[str, Any]) -> str:
         norms = [r["first_grad_norm"] for r in runs]
         lives = [r["half_life"] for r in runs if r["diverged_at"] is None]
         cv = statistics.pstdev(norms) / statistics.mean(norms) if statistics.mean(norms) else 0
+        reached = "—"
+        if lives:
+            reached = f"{statistics.median(lives):.2f} ({min(lives):.2f}, {max(lives):.2f})"
+        diverged = sum(r["diverged_at"] is not None for r in runs)
         lines.append(
             f"| {setting['frames']} | {setting['window'] or 'full'} | {len(runs)} | "
-            f"{statistics.median(norms):.3g} ({cv:.2f}) | "
-            f"{sum(r['diverged_at'] is not None for r in runs)} | "
-            + (
-                f"{statistics.median(lives):.2f} ({min(lives):.2f}, {max(lives):.2f})"
-                if lives
-                else "—"
-            )  # fmt: skip
-            + " |"
+            f"{statistics.median(norms):.3g} ({cv:.2f}) | {diverged} | {reached} |"
         )
     return "\n".join(lines)
 
