@@ -152,7 +152,9 @@ def train_paac(
         while steps_done < env_steps:
             update += 1
             dead_units.reset()
-            rollout = actor.rollout(loss.rollout_steps)
+            collect_start = time.perf_counter()
+            rollout = actor.rollout(loss.rollout_steps)  # the envs' steps and the forward passes
+            update_start = time.perf_counter()
             returns = n_step_returns(
                 rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
             )
@@ -166,6 +168,7 @@ def train_paac(
             updating = True
             opt.step()
             schedule.step()
+            update_end = time.perf_counter()
             steps_done += rollout.env_steps
             updating = False
             recent.extend(rollout.scores)
@@ -175,6 +178,8 @@ def train_paac(
             window.append({
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
+                "time/collect_ms": 1e3 * (update_start - collect_start),  # env steps + forward
+                "time/update_ms": 1e3 * (update_end - update_start),  # loss, backward, step
                 **_prefixed(losses),
             })  # fmt: skip
             bar.update(rollout.env_steps)
