@@ -1,0 +1,188 @@
+"""``edr-bench --atari``: what EDR costs in the Atari loop. Env steps per second of the same
+envs with and without EDR, the two taking turns, and ``task=atari``'s whole training loop with
+FDR alone and with FDR+EDR; a record per backend, ``results/bench/atari_<backend>_<host>_<time>.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from edr.atomic import write_json_atomic
+from edr.bench import Row
+from edr.records import git_revision, machine_info
+from edr.report.speed import atari_cost_table
+from edr.representations import EDR
+
+
+@dataclass
+class AtariThroughput:
+    """``edr-bench --atari``: the two configs' rows, and EDR's cost per pair of rollouts."""
+
+    rows: list[Row]  # FDR, then FDR + EDR; median over the timed rollouts
+    main_cpu_ms: list[float]  # per row: the main process's CPU ms per agent step (median)
+    costs: list[float]  # per pair of rollouts: 1 - (FDR+EDR steps/s) / (FDR steps/s), in %
+
+    @property
+    def cost(self) -> float:
+        """EDR's cost in %: the median over pairs, which load drifts shared by a pair cancel."""
+        return statistics.median(self.costs)
+
+
+TRAIN_ROLLOUT_STEPS = 5  # task=atari's rollout length and frames per network input: they
+TRAIN_FRAME_STACK = 4  # size its ring of observations (its env stacks none, its network takes 4)
+BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl ParallelEnv",
+                 "serial": "torchrl SerialEnv"}  # fmt: skip
+
+
+def training_throughput(
+    game: str, num_envs: int, backend: str, env_steps: int, inputs: str = "fdr_edr"
+) -> tuple[float, float]:
+    """Env steps/s of ``task=atari``'s training loop (``inputs``: FDR RGB + EDR gray or FDR RGB,
+    its defaults otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
+    bar shows them, and steady (from a quarter of the way on, after the first updates compiled
+    the EDR kernels and warmed the allocator: what a run of hours sees)."""
+    from edr.rl.settings import EnvSettings, EvalSettings
+    from edr.tasks.atari import HISTORY, train_paac
+
+    with tempfile.TemporaryDirectory() as out_dir:
+        env = EnvSettings(
+            game=game, backend=backend, num_envs=num_envs, inputs=inputs,
+            edr=EDR(color="gray") if inputs != "fdr" else None,
+        )  # fmt: skip
+        metrics = train_paac(
+            out_dir=Path(out_dir), seed=0, env=env, env_steps=env_steps,
+            evaluation=EvalSettings(plays=1, max_steps=1), checkpoint_every=10**9, logger=None,
+        )  # fmt: skip
+        history = json.loads((Path(out_dir) / HISTORY).read_text())
+    fps = float(metrics["train/fps"])
+    if len(history) < 2:
+        return fps, fps
+    # each row's fps is cumulative from the first rollout: its elapsed time is env steps / fps
+    elapsed = [row["env_steps"] / row["train/fps"] for row in history]
+    warm = min(
+        len(history) - 2,
+        next(i for i, r in enumerate(history) if r["env_steps"] >= env_steps / 4),
+    )
+    steady = (history[-1]["env_steps"] - history[warm]["env_steps"]) / (elapsed[-1] - elapsed[warm])
+    return fps, steady
+
+
+def atari_throughput(
+    game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int,
+    obs_dtype: str = "float32", backend: str = "parallel",
+) -> AtariThroughput:  # fmt: skip
+    """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
+
+    Both use the paper's preset and RGB frames stacked ``frame_stack`` times by the env (1:
+    none, as ``task=atari`` builds its envs; its network takes the frames as they come); the
+    EDR run adds
+    EDR on gray (Appendix C's 5 channels per frame). Random actions; ``fps`` counts env steps of
+    all envs. The two envs live side by side and take turns (in alternating order), so that load
+    drifts hit both alike; each plays on from where its last rollout stopped, as in training.
+    """
+    from edr.rl.envs import make_atari_env  # ale-py and torchrl load only for this mode
+    from edr.rl.rollout import observations_held
+
+    configs = {"FDR RGB": None, "FDR RGB + EDR gray": EDR(color="gray")}
+    envs = [
+        make_atari_env(
+            game,
+            num_envs=num_envs,
+            backend=backend,
+            edr=edr,
+            frame_stack=frame_stack,
+            obs_dtype=obs_dtype,
+            keep_inputs=False,  # as task=atari trains: the observation alone
+            stack_ring=observations_held(TRAIN_ROLLOUT_STEPS, TRAIN_FRAME_STACK),
+        )
+        for edr in configs.values()
+    ]
+    data: list[Any] = []  # each env's latest tensordict: the streams go on across rollouts
+
+    def play(j: int) -> None:  # as a collector steps: act, step, reset what ended; keep nothing
+        env, td = envs[j], data[j]
+        for _ in range(steps):
+            _, td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))
+        data[j] = td
+
+    wall: list[list[float]] = [[] for _ in envs]
+    cpu: list[list[float]] = [[] for _ in envs]
+    try:
+        for j, env in enumerate(envs):
+            env.set_seed(0)
+            data.append(env.reset())
+            for _ in range(warmup):
+                play(j)
+        for i in tqdm(range(repeats), desc="atari rollouts", unit="pair"):
+            for j in (0, 1) if i % 2 == 0 else (1, 0):
+                start, start_cpu = time.perf_counter(), time.process_time()
+                play(j)
+                wall[j].append(time.perf_counter() - start)
+                cpu[j].append(time.process_time() - start_cpu)
+    finally:
+        for env in envs:
+            env.close()
+    implementation = f"{BACKEND_NAMES[backend]}, {num_envs} envs, paac preset"
+    frames = steps * num_envs
+    rows = [
+        Row(f"{game}: {name}, {frame_stack} frames, {obs_dtype}", implementation, frames, "84x84",
+            statistics.median(t), frames / statistics.median(t))
+        for name, t in zip(configs, wall, strict=True)
+    ]  # fmt: skip
+    return AtariThroughput(
+        rows=rows,
+        main_cpu_ms=[1e3 * statistics.median(c) / steps for c in cpu],
+        costs=[100 * (1 - fdr / edr) for fdr, edr in zip(*wall, strict=True)],
+    )
+
+
+def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
+    """The ``--atari`` mode of ``edr-bench``: a record per backend, then the cost table."""
+    stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
+    records = []
+    for backend in args.backends.split(","):
+        result = atari_throughput(
+            args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack,
+            args.obs_dtype, backend,
+        )  # fmt: skip
+        training = {}  # train_fps(_steady): FDR + EDR, as before; train_fps_fdr(_steady): FDR
+        for inputs, key in (("fdr", "train_fps_fdr"), ("fdr_edr", "train_fps")):
+            fps = (None, None)
+            if args.train_frames:
+                fps = training_throughput(args.game, args.atari, backend, args.train_frames, inputs)
+            training[key], training[f"{key}_steady"] = fps
+        record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
+                  "game": args.game, "num_envs": args.atari, "backend": backend,
+                  "frame_stack": args.frame_stack, "obs_dtype": args.obs_dtype,
+                  "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
+                  "train_frames": args.train_frames, **training,
+                  "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
+        name = f"atari_{backend}_{machine['hostname']}_{stamp}.json"
+        records.append((write_json_atomic(args.out_dir / name, record), record))
+        for r, cpu in zip(result.rows, result.main_cpu_ms, strict=True):
+            print(
+                f"{backend:9s} {r.name:40s} {r.fps:8.1f} env steps/s "
+                f"({4 * r.fps:.0f} emulator frames/s), main process {cpu:.2f} CPU ms/step"
+            )
+        print(
+            f"{backend:9s} EDR costs {result.cost:.1f} % of throughput (median of {repeats} "
+            f"paired rollouts; {min(result.costs):.1f} to {max(result.costs):.1f} %)"
+        )
+        if args.train_frames:
+            print(
+                f"{backend:9s} training loop, env steps/s (steady): FDR "
+                f"{training['train_fps_fdr']:.0f} ({training['train_fps_fdr_steady']:.0f}), "
+                f"FDR + EDR {training['train_fps']:.0f} ({training['train_fps_steady']:.0f})"
+            )
+    print(atari_cost_table(records))
+    print(f"records: {', '.join(str(p) for p, _ in records)} (edr-tables renders "
+          "paper/atari_edr_cost.md from them)")  # fmt: skip
