@@ -94,16 +94,20 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
                     out[b, t, c, k % out.shape[3], 0, lo:hi],
                     out[b, t, c, k % out.shape[3], 1, lo:hi],
                 )
+                plain = not (sum_k or log_form) and bk == 1  # r = I / e: no log, no exp
                 for j in range(hi - lo):
                     e = prev[j] + a * (now[j] - prev[j])
                     cur[j] = e
-                    x = bk * np.log(now[j] / e)
-                    if sum_k:
-                        acc[j] += x
+                    if plain:
+                        r = now[j] / e
                     else:
+                        x = bk * np.log(now[j] / e)
+                        if sum_k:
+                            acc[j] += x
+                            continue
                         r = x if log_form else np.exp(x)
-                        on[j] = one_if(r > on_th[k], zero) if hard else max(r - on_th[k], zero)
-                        off[j] = one_if(r < off_th[k], zero) if hard else max(off_th[k] - r, zero)
+                    on[j] = one_if(r > on_th[k], zero) if hard else max(r - on_th[k], zero)
+                    off[j] = one_if(r < off_th[k], zero) if hard else max(off_th[k] - r, zero)
             if sum_k:
                 on, off = out[b, t, c, 0, 0, lo:hi], out[b, t, c, 0, 1, lo:hi]
                 for j in range(hi - lo):
@@ -117,13 +121,26 @@ def one_if(condition, zero):
     return zero + 1 if condition else zero
 
 
+@njit(inline="always")
+def _fired(on, off, on_th, off_th, hard, log_form, i, e, bk):
+    """Where an event fired: the response r and its log ratio ln(I / e). A soft event tells r
+    itself; only a hard one makes r be computed again."""
+    log_ratio = np.log(i / e)
+    if hard:
+        x = bk * log_ratio
+        return (x if log_form else np.exp(x)), log_ratio
+    return (on + on_th if on > 0 else off_th - off), log_ratio
+
+
 @njit(parallel=True, cache=True, fastmath=True)
-def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k, window,
-                    grad_out, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
+def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form, hard, sum_k,
+                    window, grad_out, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
     """One reverse-time scan per pixel: grad_in (B, T, C, P), and per job the partial sums of
-    the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off (jobs, K'). ``window``
-    > 0: the EMA's gradient does not cross from frame t to t - 1 where t is a multiple of it
-    (truncated backpropagation through time, as if e(t - 1) were a constant)."""
+    the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off (jobs, K'). Only where an
+    event fired (``events``: the forward's output) does a response send a gradient, so
+    logarithms are taken there alone. ``window`` > 0: the EMA's gradient does not cross from
+    frame t to t - 1 where t is a multiple of it (truncated backpropagation through time, as if
+    e(t - 1) were a constant)."""
     n_b, n_t, n_c, n_p = intensity.shape
     n_k = alpha.shape[0]
     n_chunks = (n_p + CHUNK - 1) // CHUNK
@@ -133,52 +150,60 @@ def backward_kernel(intensity, ema, alpha, beta, on_th, off_th, log_form, sum_k,
         zero = intensity[b, 0, c, lo] * 0
         carry = np.zeros((n_k, n), intensity.dtype)  # g_e(t+1) (1 - a): what e(t) gets
         g_i = np.empty(n, intensity.dtype)
-        g_s = np.empty(n, intensity.dtype)  # sum_k: d loss / d (the summed log response)
+        g_x = np.empty(n, intensity.dtype)  # d loss / d (beta_k ln(I / e_k)), this t and k
         for t in range(n_t - 1, -1, -1):
             now = intensity[b, t, c, lo:hi]
             g_i[:] = zero
             cut = window > 0 and t % window == 0
-            if sum_k:
-                g_on_out, g_off_out = grad_out[b, t, c, 0, 0, lo:hi], grad_out[b, t, c, 0, 1, lo:hi]
+            if sum_k:  # one response for every timescale: d loss / d (the summed log ratio)
+                on_ev, off_ev = events[b, t, c, 0, 0, lo:hi], events[b, t, c, 0, 1, lo:hi]
                 d_on, d_off = zero, zero
                 for j in range(n):
-                    x = zero
-                    for k in range(n_k):
-                        x += beta[k] * np.log(now[j] / ema[b, t, c, k, lo + j])
-                    r = x if log_form else np.exp(x)
-                    above, below = r > on_th[0], r < off_th[0]
-                    g_r = (g_on_out[j] if above else zero) - (g_off_out[j] if below else zero)
-                    d_on -= g_on_out[j] if above else zero
-                    d_off += g_off_out[j] if below else zero
-                    g_s[j] = g_r if log_form else g_r * r
+                    g_x[j] = zero
+                    if on_ev[j] != zero or off_ev[j] != zero:
+                        x = zero
+                        for k in range(n_k):
+                            x += beta[k] * np.log(now[j] / ema[b, t, c, k, lo + j])
+                        r = x if log_form else np.exp(x)
+                        g_on_out, g_off_out = (
+                            grad_out[b, t, c, 0, 0, lo + j],
+                            grad_out[b, t, c, 0, 1, lo + j],
+                        )
+                        above, below = r > on_th[0], r < off_th[0]
+                        g_r = (g_on_out if above else zero) - (g_off_out if below else zero)
+                        d_on -= g_on_out if above else zero
+                        d_off += g_off_out if below else zero
+                        g_x[j] = g_r if log_form else g_r * r
                 g_on[job, 0] += d_on
                 g_off[job, 0] += d_off
             for k in range(n_k):
                 a, bk = alpha[k], beta[k]
                 cur = ema[b, t, c, k, lo:hi]
                 prev = ema[b, t - 1, c, k, lo:hi] if t > 0 else cur
-                kk = 0 if sum_k else k
-                g_on_out, g_off_out = (
-                    grad_out[b, t, c, kk, 0, lo:hi],
-                    grad_out[b, t, c, kk, 1, lo:hi],
-                )
                 d_alpha, d_beta, d_on, d_off = zero, zero, zero, zero
+                if not sum_k:
+                    on_ev, off_ev = events[b, t, c, k, 0, lo:hi], events[b, t, c, k, 1, lo:hi]
+                    for j in range(n):
+                        g_x[j] = zero
+                        if on_ev[j] != zero or off_ev[j] != zero:
+                            r, log_ratio = _fired(on_ev[j], off_ev[j], on_th[k], off_th[k], hard,
+                                                  log_form, now[j], cur[j], bk)  # fmt: skip
+                            g_on_out = grad_out[b, t, c, k, 0, lo + j]
+                            g_off_out = grad_out[b, t, c, k, 1, lo + j]
+                            above, below = on_ev[j] != zero, off_ev[j] != zero
+                            g_r = (g_on_out if above else zero) - (g_off_out if below else zero)
+                            d_on -= g_on_out if above else zero
+                            d_off += g_off_out if below else zero
+                            g_x[j] = g_r if log_form else g_r * r
+                            d_beta += g_x[j] * log_ratio
+                else:
+                    for j in range(n):
+                        if g_x[j] != zero:
+                            d_beta += g_x[j] * np.log(now[j] / cur[j])
                 for j in range(n):
                     e = cur[j]
-                    lr = np.log(now[j] / e)
-                    if sum_k:
-                        g_x = g_s[j]
-                    else:
-                        x = bk * lr
-                        r = x if log_form else np.exp(x)
-                        above, below = r > on_th[k], r < off_th[k]
-                        g_r = (g_on_out[j] if above else zero) - (g_off_out[j] if below else zero)
-                        d_on -= g_on_out[j] if above else zero
-                        d_off += g_off_out[j] if below else zero
-                        g_x = g_r if log_form else g_r * r  # d loss / d (beta ln(I / e))
-                    d_beta += g_x * lr
-                    g_i[j] += g_x * bk / now[j]
-                    total = carry[k, j] - g_x * bk / e
+                    g_i[j] += g_x[j] * bk / now[j]
+                    total = carry[k, j] - g_x[j] * bk / e
                     if t > 0:
                         d_alpha += total * (now[j] - prev[j])
                         g_i[j] += total * a
@@ -207,14 +232,14 @@ class FusedEDRFunction(torch.autograd.Function):
         params = [v.detach().contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(forward_kernel, b * t * p * c, intensity.detach().numpy(), *params,
                        log_form, hard, sum_k, ema.numpy(), out.numpy())  # fmt: skip
-        ctx.save_for_backward(intensity, ema, alpha, beta, on_th, off_th)
-        ctx.flags = (log_form, sum_k, window)
+        ctx.save_for_backward(intensity, ema, out, alpha, beta, on_th, off_th)
+        ctx.flags = (log_form, hard, sum_k, window)
         return out
 
     @staticmethod
     def backward(ctx: Any, grad_out: torch.Tensor):
-        intensity, ema, alpha, beta, on_th, off_th = ctx.saved_tensors
-        log_form, sum_k, window = ctx.flags
+        intensity, ema, events, alpha, beta, on_th, off_th = ctx.saved_tensors
+        log_form, hard, sum_k, window = ctx.flags
         b, t, c, p = intensity.shape
         jobs = b * c * ((p + CHUNK - 1) // CHUNK)
         dtype = intensity.dtype
@@ -223,8 +248,9 @@ class FusedEDRFunction(torch.autograd.Function):
         g_on, g_off = (torch.zeros((jobs, on_th.shape[0]), dtype=dtype) for _ in range(2))
         params = [v.detach().to(dtype).contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(
-            backward_kernel, b * t * p * c, intensity.detach().numpy(), ema.numpy(), *params,
-            log_form, sum_k, window, grad_out.to(dtype).contiguous().numpy(), grad_in.numpy(),
+            backward_kernel, b * t * p * c, intensity.detach().numpy(), ema.numpy(),
+            events.detach().numpy(), *params, log_form, hard, sum_k, window,
+            grad_out.to(dtype).contiguous().numpy(), grad_in.numpy(),
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
         sums = [g.sum(0).to(v.dtype) for g, v in zip((g_alpha, g_beta, g_on, g_off),
