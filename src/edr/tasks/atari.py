@@ -34,12 +34,13 @@ from edr.checkpoints import (
     save_atomic,
     save_checkpoint,
 )
+from edr.models.dead_units import DeadUnits
 from edr.rebuild import UntrustedRecord, instantiate_from_record
 from edr.records import read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.optim import make_optimizer
-from edr.rl.paac import DeadUnits, PAACNetwork, n_step_returns, paac_loss
+from edr.rl.paac import PAACNetwork, n_step_returns, paac_loss
 from edr.rl.rollout import Actor, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,

@@ -25,6 +25,7 @@ from edr.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, s
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity
+from edr.models.dead_units import DeadUnits
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
 from edr.representations import Representation
@@ -170,10 +171,12 @@ def fit_recognition(
         restore(state, parts)
         history, start_epoch = state["history"], state["epoch"]
     loss_fn = nn.CrossEntropyLoss()
+    dead_units = DeadUnits(model)  # whether the network stays alive, per epoch
 
     # ---- training ----------------------------------------------------------------------------
     for epoch in range(start_epoch, epochs):
         model.train()
+        dead_units.reset()
         sampler = RandomSampler(train_set, replacement=True, num_samples=clips_per_epoch)
         loader = DataLoader(
             train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers
@@ -197,6 +200,7 @@ def fit_recognition(
             "epoch": epoch + 1,
             "train/loss": loss_sum / total,
             "train/accuracy": correct / total,
+            **dead_units.fractions(),  # units that fired on no training clip of the epoch
         }
         row["train/lr"] = opt.param_groups[0]["lr"]
         scheduler.step()
