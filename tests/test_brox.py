@@ -98,3 +98,9 @@ def test_flow_accuracy_writes_a_record_that_edr_tables_renders(tmp_path) -> None
     epe = json.loads(record.read_text())["epe"]
     assert f"| Brox | {epe['Brox']['translation']:.3f} |" in text and record.name in text
     assert epe["Brox"]["translation"] < 0.2  # a working Brox recovers a 2.7-pixel shift
+
+
+def test_brox_refuses_intensities_far_outside_video_range() -> None:
+    frames = torch.full((1, 2, 1, 16, 16), 1e38)
+    with pytest.raises(ValueError, match="Brox expects video intensities"):
+        BroxFlow()(frames)

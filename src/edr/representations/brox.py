@@ -187,6 +187,9 @@ def brox_flow(
     return torch.cat((u, v), dim=1)
 
 
+MAX_INTENSITY = 1e6  # far above any video; float32 squares of image gradients stay finite
+
+
 class BroxFlow(FlowRepresentation):
     """Brox et al. (2004) flow: (B, T, C, H, W) -> (B, T-1, 2, H, W), (dx, dy), every pair of
     consecutive frames in one batch, on the clip's device. See :func:`brox_flow`."""
@@ -214,6 +217,11 @@ class BroxFlow(FlowRepresentation):
     @torch.no_grad()
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, min_frames=2, name="frames")
+        if frames.is_floating_point() and float(frames.max()) > MAX_INTENSITY:
+            raise ValueError(
+                f"frames reach {float(frames.max()):.3g}: Brox expects video intensities, 0..255 "
+                f"(at most {MAX_INTENSITY:g}; its squared gradients overflow beyond)"
+            )
         gray = to_gray(frames, channel_dim=2).float() / 255.0  # (B, T, 1, H, W), 0..1
         b, t, _, h, w = gray.shape
         first = gray[:, :-1].reshape(-1, 1, h, w)
