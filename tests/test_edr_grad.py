@@ -123,3 +123,23 @@ def test_the_gradient_study_writes_a_record_and_its_table(tmp_path, capsys) -> N
                                                               (250, 10)]  # fmt: skip
     assert all(r["first_grad_norm"] > 0 for s in settings for r in s["runs"])
     assert "| 250 | full | 2 |" in capsys.readouterr().out
+
+
+def test_the_bounded_parameterization_starts_where_the_log_one_does_and_stays_in_range() -> None:
+    clip = _clip(torch.float32, channels=1).detach()
+    settings = {"half_lives": (1.0, 3.8), "beta": (1.0, 0.5), "nu_on": 0.1, "nu_off": 0.2}
+    plain = EDR(learnable=True, **settings)
+    bounded = EDR(learnable=True, parameterization="bounded", **settings)
+    torch.testing.assert_close(bounded(clip), plain(clip), rtol=1e-4, atol=1e-4)
+    assert {n for n, _ in bounded.named_parameters()} == {
+        "tau_logit", "log_beta", "nu_on_logit", "nu_off_logit",
+    }  # fmt: skip
+    with torch.no_grad():  # pushed far: the bounded values stay in their ranges
+        for p in bounded.parameters():
+            p.add_(5.0)
+    values = bounded.values()
+    assert values["edr/tau_0"] <= 64 and 0 < values["edr/nu_off_0"] < 1 and values["edr/beta_0"] > 0
+    bounded(clip).sum().backward()
+    assert all(torch.isfinite(p.grad).all() for p in bounded.parameters())
+    with pytest.raises(ValueError, match="bounded"):
+        EDR(half_lives=(100.0,), learnable=True, parameterization="bounded")

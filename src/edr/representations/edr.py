@@ -16,7 +16,6 @@ ON/OFF pair. Output channel order: for each input channel c, for each timescale 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Literal, NamedTuple
 
@@ -52,6 +51,9 @@ def _per_timescale(value: float | Sequence[float], k: int, name: str) -> torch.T
     if len(values) != k:
         raise ValueError(f"{name} has {len(values)} values; give one, or one per timescale ({k})")
     return torch.tensor(values, dtype=torch.float32)
+
+
+TAU_RANGE = (0.25, 64.0)  # half-lives in frames that parameterization="bounded" can reach
 
 
 class KernelArgs(NamedTuple):
@@ -108,6 +110,7 @@ class EDR(Representation):
         color: Literal["keep", "gray"] = "keep",
         fast: bool = True,
         bptt_window: PositiveInt | None = None,
+        parameterization: Literal["log", "bounded"] = "log",
         out_dtype: Literal["float32", "float16", "bfloat16", "float64"] = "float32",
     ) -> None:
         super().__init__()
@@ -138,14 +141,22 @@ class EDR(Representation):
         self._compute_dtype = torch.float64 if out_dtype == "float64" else torch.float32
         self.k = k
         self._param_cache: tuple[tuple, tuple] | None = None
-        log_tau = torch.tensor([math.log(h) for h in half_lives], dtype=torch.float32)
-        # tau = exp(log_tau) keeps every half-life positive while it learns.
-        for name, value in (
-            ("log_tau", log_tau),
-            ("beta", _per_timescale(beta, k, "beta")),
-            ("nu_on", nu_on_t),
-            ("nu_off", nu_off_t),
-        ):
+        self.parameterization = parameterization
+        taus = torch.tensor(half_lives, dtype=torch.float32)
+        if parameterization == "log":  # tau = exp(log_tau): every half-life stays positive
+            raw = (("log_tau", taus.log()), ("beta", _per_timescale(beta, k, "beta")),
+                   ("nu_on", nu_on_t), ("nu_off", nu_off_t))  # fmt: skip
+        else:  # each value a sigmoid into its range, beta through exp: none can leave its range
+            if not all(TAU_RANGE[0] < h < TAU_RANGE[1] for h in half_lives) or (nu_on_t >= 1).any():
+                raise ValueError(
+                    f"EDR: parameterization='bounded' takes half-lives in {TAU_RANGE} and nu_on < 1"
+                )
+            span = TAU_RANGE[1] - TAU_RANGE[0]
+            raw = (("tau_logit", torch.logit((taus - TAU_RANGE[0]) / span)),
+                   ("log_beta", _per_timescale(beta, k, "beta").log()),
+                   ("nu_on_logit", torch.logit(nu_on_t)), ("nu_off_logit", torch.logit(nu_off_t)))  # fmt: skip
+        self._raw_names = tuple(name for name, _ in raw)
+        for name, value in raw:
             if learnable:
                 self.register_parameter(name, nn.Parameter(value))
             else:
@@ -164,9 +175,35 @@ class EDR(Representation):
         pairs = out_t.detach().float().cpu().reshape(-1, 2, *out_t.shape[-2:]).sum(0).numpy()
         return on_off_picture(pairs[0], pairs[1])
 
+    def _raw(self) -> tuple[torch.Tensor, ...]:
+        """The stored tensors (parameters when learnable), in the order of ``_raw_names``."""
+        return tuple(getattr(self, name) for name in self._raw_names)
+
     @property
     def half_lives(self) -> torch.Tensor:
-        return self.log_tau.exp()
+        """(K,) half-lives in frames."""
+        if self.parameterization == "log":
+            return self.log_tau.exp()
+        return TAU_RANGE[0] + (TAU_RANGE[1] - TAU_RANGE[0]) * torch.sigmoid(self.tau_logit)
+
+    @property
+    def betas(self) -> torch.Tensor:
+        """(K,) the ratio's exponents (the log-ratio's weights)."""
+        return self.beta if self.parameterization == "log" else self.log_beta.exp()
+
+    def values(self) -> dict[str, float]:
+        """``{"edr/tau_0": ..., "edr/beta_0": ..., "edr/nu_on_0": ..., "edr/nu_off_0": ...}``:
+        the layer's settings as numbers, one per timescale (what a learnable layer learned)."""
+        with torch.no_grad():
+            named = {"tau": self.half_lives, "beta": self.betas, **dict(zip(("nu_on", "nu_off"),
+                     self.nus(), strict=True))}  # fmt: skip
+        return {f"edr/{name}_{i}": float(v) for name, t in named.items() for i, v in enumerate(t)}
+
+    def nus(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(K',) nu_on and nu_off."""
+        if self.parameterization == "log":
+            return self.nu_on, self.nu_off
+        return torch.sigmoid(self.nu_on_logit), torch.sigmoid(self.nu_off_logit)
 
     @property
     def alpha(self) -> torch.Tensor:
@@ -175,7 +212,8 @@ class EDR(Representation):
 
     def thresholds(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(K',) ON and OFF thresholds in the domain of ``return_form``."""
-        on, off = 1.0 + self.nu_on, 1.0 - self.nu_off
+        nu_on, nu_off = self.nus()
+        on, off = 1.0 + nu_on, 1.0 - nu_off
         if self.return_form == "log":
             return torch.log(on), torch.log(off)
         return on, off
@@ -286,7 +324,7 @@ class EDR(Representation):
         alpha = self.alpha.to(intensity).view(1, 1, self.k, 1, 1)
         ema = prev + alpha * (intensity - prev)  # (B, C', K, H, W)
         ratio = intensity / ema
-        beta = self.beta.to(intensity).view(1, 1, self.k, 1, 1)
+        beta = self.betas.to(intensity).view(1, 1, self.k, 1, 1)
         if self.combine == "sum":
             summed = (beta * torch.log(ratio)).sum(dim=2, keepdim=True)  # (B, C', 1, H, W)
             response = summed if self.return_form == "log" else torch.exp(summed)
@@ -332,7 +370,7 @@ class EDR(Representation):
             intensity = intensities(frames, gray, self.eps, self._compute_dtype)  # (B, T, C', H, W)
         on_th, off_th = self.thresholds()
         return fused_events(
-            intensity, self.alpha, self.beta, on_th, off_th, log_form=self.return_form == "log",
+            intensity, self.alpha, self.betas, on_th, off_th, log_form=self.return_form == "log",
             hard=self.threshold == "hard", sum_k=self.combine == "sum",
             window=self.bptt_window or 0,
         )  # fmt: skip
@@ -351,11 +389,11 @@ class EDR(Representation):
 
     def kernel_params(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(alpha, beta, on_th, off_th) as float32 arrays, recomputed only when a parameter changes."""
-        params = (self.log_tau, self.beta, self.nu_on, self.nu_off)
+        params = self._raw()
         key = tuple((p.data_ptr(), p._version) for p in params)
         if self._param_cache is None or self._param_cache[0] != key:
             with torch.no_grad():
-                values = (self.alpha, self.beta, *self.thresholds())
+                values = (self.alpha, self.betas, *self.thresholds())
                 arrays = tuple(v.detach().cpu().to(torch.float32).numpy().copy() for v in values)
             self._param_cache = (key, arrays)
         return self._param_cache[1]

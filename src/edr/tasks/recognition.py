@@ -28,7 +28,7 @@ from edr.models import RecognitionModel, activation_sparsity
 from edr.models.dead_units import DeadUnits
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
-from edr.representations import Representation
+from edr.representations import EDR, Representation
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import open_logger
@@ -201,6 +201,7 @@ def fit_recognition(
             "train/loss": loss_sum / total,
             "train/accuracy": correct / total,
             **dead_units.fractions(),  # units that fired on no training clip of the epoch
+            **_learned(online),  # a learnable EDR's half-lives, betas and nus, epoch by epoch
         }
         row["train/lr"] = opt.param_groups[0]["lr"]
         scheduler.step()
@@ -252,8 +253,16 @@ def fit_recognition(
         "train/loss": history[-1]["train/loss"] if history else float("nan"),
         "model/parameters": sum(p.numel() for p in model.parameters()),
         **{f"sparsity/{name}": value for name, value in sparsity.items()},
+        **_learned(online),
     }
     return Fitted(model, metrics)
+
+
+def _learned(representation: Representation | None) -> dict[str, float]:
+    """A learnable EDR's current values (``edr/tau_0``, ...); nothing for any other layer."""
+    if isinstance(representation, EDR) and representation.learnable:
+        return representation.values()
+    return {}
 
 
 @functools.wraps(fit_recognition)
