@@ -119,10 +119,11 @@ def test_the_gradient_study_writes_a_record_and_its_table(tmp_path, capsys) -> N
     edr_gradients.main(["--seeds", "2", "--steps", "2", "--size", "24", "--out-dir", str(tmp_path)])
     (record,) = tmp_path.glob("edr_gradients_*.json")
     settings = json.loads(record.read_text())["settings"]
-    assert [(s["frames"], s["window"]) for s in settings] == [(60, None), (60, 10), (250, None),
-                                                              (250, 10)]  # fmt: skip
+    assert [(s["frames"], s["window"], s["parameterization"]) for s in settings] == [
+        (t, w, p) for t in (60, 250) for w in (None, 10) for p in ("log", "bounded")
+    ]
     assert all(r["first_grad_norm"] > 0 for s in settings for r in s["runs"])
-    assert "| 250 | full | 2 |" in capsys.readouterr().out
+    assert "| 250 | full | bounded | 2 |" in capsys.readouterr().out
 
 
 def test_the_bounded_parameterization_starts_where_the_log_one_does_and_stays_in_range() -> None:

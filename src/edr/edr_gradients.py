@@ -4,9 +4,10 @@ learning the EDR parameters seems to be quite unstable").
 
 ``python -m edr.edr_gradients`` fits a learnable EDR (half-life 1.0, beta, nu learnable) to the
 events of a fixed one (the paper's half-life 3.8) on generated scenes, one seed per scene, with
-Adam; per setting it reports the log half-life's gradient norm at the start (median and
-coefficient of variation over seeds), the runs that diverged (a non-finite loss, or a half-life
-leaving [0.1, 1000]) and the half-lives reached. It writes a record,
+Adam, in each parameterization (``log``, ``bounded``); per setting it reports the gradient
+norm of the raw parameters at the start (median and coefficient of variation over seeds), the
+runs that diverged (a non-finite loss, or a half-life leaving [0.1, 1000]) and the half-lives
+reached. It writes a record,
 ``results/bench/edr_gradients_<host>_<time>.json``, and prints the table.
 """
 
@@ -29,18 +30,21 @@ from edr.representations import EDR
 TARGET_HALF_LIFE = 3.8
 
 
-def fit(frames: int, window: int | None, seed: int, steps: int, size: int) -> dict[str, Any]:
+def fit(
+    frames: int, window: int | None, parameterization: str, seed: int, steps: int, size: int
+) -> dict[str, Any]:
     """One fit from half-life 1.0: the first gradient norm, whether it diverged, where it went."""
     clip = synthetic_scene(frames, size, size, seed=seed).unsqueeze(0)  # (1, T, 3, H, W)
     target = EDR(half_lives=(TARGET_HALF_LIFE,), color="gray")(clip).detach()
-    learner = EDR(half_lives=(1.0,), color="gray", learnable=True, bptt_window=window)
+    learner = EDR(half_lives=(1.0,), color="gray", learnable=True, bptt_window=window,
+                  parameterization=parameterization)  # fmt: skip
     optim = torch.optim.Adam(learner.parameters(), lr=0.05)
     first_norm, diverged_at = None, None
     for step in range(steps):
         loss = (learner(clip) - target).pow(2).mean()
         optim.zero_grad()
         loss.backward()
-        norm = float(learner.log_tau.grad.norm())
+        norm = float(torch.cat([p.grad.flatten() for p in learner.parameters()]).norm())
         first_norm = norm if first_norm is None else first_norm
         tau = float(learner.half_lives.detach()[0])
         if not (math.isfinite(float(loss)) and math.isfinite(norm) and 0.1 < tau < 1000):
@@ -52,15 +56,15 @@ def fit(frames: int, window: int | None, seed: int, steps: int, size: int) -> di
         "first_grad_norm": first_norm,
         "diverged_at": diverged_at,
         "half_life": float(learner.half_lives.detach()[0]),
-        "beta": float(learner.beta.detach()[0]),
+        "beta": float(learner.betas.detach()[0]),
     }
 
 
 def table(record: dict[str, Any]) -> str:
     lines = [
-        "| T | BPTT | runs | grad norm at start: median (CV) | diverged | half-life reached: "
-        "median (min, max) |",
-        "|---:|---|---:|---|---:|---|",
+        "| T | BPTT | parameterization | runs | grad norm at start: median (CV) | diverged | "
+        "half-life reached: median (min, max) |",
+        "|---:|---|---|---:|---|---:|---|",
     ]
     for setting in record["settings"]:
         runs = setting["runs"]
@@ -72,7 +76,8 @@ def table(record: dict[str, Any]) -> str:
             reached = f"{statistics.median(lives):.2f} ({min(lives):.2f}, {max(lives):.2f})"
         diverged = sum(r["diverged_at"] is not None for r in runs)
         lines.append(
-            f"| {setting['frames']} | {setting['window'] or 'full'} | {len(runs)} | "
+            f"| {setting['frames']} | {setting['window'] or 'full'} | "
+            f"{setting['parameterization']} | {len(runs)} | "
             f"{statistics.median(norms):.3g} ({cv:.2f}) | {diverged} | {reached} |"
         )
     return "\n".join(lines)
@@ -92,10 +97,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
     settings = [
-        {"frames": frames, "window": window,
-         "runs": [fit(frames, window, seed, args.steps, args.size) for seed in range(args.seeds)]}
+        {"frames": frames, "window": window, "parameterization": param,
+         "runs": [fit(frames, window, param, seed, args.steps, args.size)
+                  for seed in range(args.seeds)]}
         for frames in (60, 250)
         for window in (None, args.window)
+        for param in ("log", "bounded")
     ]  # fmt: skip
     record = {"kind": "edr_gradients", "measured_at": stamp, "git": git_revision(),
               "machine": machine, "steps": args.steps, "size": args.size,
