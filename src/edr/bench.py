@@ -32,7 +32,7 @@ from tqdm import tqdm
 from edr.allocator import keep_freed_memory
 from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene
-from edr.records import git_revision, machine_info
+from edr.records import BenchRow, git_revision, machine_info
 from edr.report.published import load_published
 from edr.report.speed import speed_table
 from edr.representations import (
@@ -51,18 +51,6 @@ from edr.representations import (
 from edr.representations.mpeg_flow import encode_clip
 
 K3 = (1.0, 3.8, 8.0)
-
-
-@dataclass
-class Row:
-    """One measured line of the speed table."""
-
-    name: str  # the representation, as Table 2 names it
-    implementation: str  # what ran: fused kernel, torch ops, OpenCV, ...
-    frames: int  # input frames per timed call
-    frame_size: str  # "320x240" or "32 x 84x84"
-    median_s: float  # median seconds per call
-    fps: float  # input frames per second (all batch rows counted)
 
 
 def time_call(fn: Callable[[], object], repeats: int, warmup: int = 3) -> float:
@@ -89,7 +77,8 @@ def train_step(edr: EDR, clip: torch.Tensor) -> None:
     """A learnable EDR's forward and backward through the clip (the gradient of the events'
     sum reaches its half-life, beta and thresholds), as a training step would run it."""
     edr.zero_grad(set_to_none=True)
-    edr(clip).sum().backward()
+    with torch.enable_grad():  # the bench times the other rows without autograd
+        edr(clip).sum().backward()
 
 
 @dataclass
@@ -298,7 +287,7 @@ def main(argv: list[str] | None = None) -> None:
     # ---- every row ---------------------------------------------------------------------------
     # The process's allocator as users have it; the last rows again with glibc keeping freed
     # memory (edr.allocator.keep_freed_memory, process-wide, so only after everything else).
-    rows: list[Row] = []
+    rows: list[BenchRow] = []
     todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari) + long_clip_jobs(long, "")
     kept = long_clip_jobs(long, ", glibc keeping freed memory")[::2]
     with torch.no_grad():
@@ -309,7 +298,7 @@ def main(argv: list[str] | None = None) -> None:
             with busy_neighbour() if job.busy_neighbour else nullcontext():
                 seconds = time_call(job.call, repeats, warmup=args.warmup)
             rows.append(
-                Row(job.name, job.implementation, job.frames, job.frame_size, seconds,
+                BenchRow(job.name, job.implementation, job.frames, job.frame_size, seconds,
                     job.frames / seconds)
             )  # fmt: skip
 

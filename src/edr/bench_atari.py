@@ -17,8 +17,7 @@ from typing import Any
 from tqdm import tqdm
 
 from edr.atomic import write_json_atomic
-from edr.bench import Row
-from edr.records import git_revision, machine_info
+from edr.records import BenchRow, git_revision, machine_info
 from edr.report.speed import atari_cost_table
 from edr.representations import EDR
 
@@ -27,7 +26,7 @@ from edr.representations import EDR
 class AtariThroughput:
     """``edr-bench --atari``: the two configs' rows, and EDR's cost per pair of rollouts."""
 
-    rows: list[Row]  # FDR, then FDR + EDR; median over the timed rollouts
+    rows: list[BenchRow]  # FDR, then FDR + EDR; median over the timed rollouts
     main_cpu_ms: list[float]  # per row: the main process's CPU ms per agent step (median)
     costs: list[float]  # per pair of rollouts: 1 - (FDR+EDR steps/s) / (FDR steps/s), in %
 
@@ -134,7 +133,7 @@ def atari_throughput(
     implementation = f"{BACKEND_NAMES[backend]}, {num_envs} envs, paac preset"
     frames = steps * num_envs
     rows = [
-        Row(f"{game}: {name}, {frame_stack} frames, {obs_dtype}", implementation, frames, "84x84",
+        BenchRow(f"{game}: {name}, {frame_stack} frames, {obs_dtype}", implementation, frames, "84x84",
             statistics.median(t), frames / statistics.median(t))
         for name, t in zip(configs, wall, strict=True)
     ]  # fmt: skip

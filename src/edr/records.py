@@ -15,6 +15,7 @@ import platform
 import socket
 import subprocess
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -109,3 +110,15 @@ def check_flat(metrics: dict[str, Any]) -> dict[str, Any]:
 
 def now() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
+@dataclass
+class BenchRow:
+    """One measured line of a bench record (``edr-bench``, ``edr-bench --atari``)."""
+
+    name: str  # the representation, as Table 2 names it, or the Atari config
+    implementation: str  # what ran: fused kernel, torch ops, OpenCV, EnvPool, ...
+    frames: int  # input frames per timed call
+    frame_size: str  # "320x240" or "32 x 84x84"
+    median_s: float  # median seconds per call
+    fps: float  # input frames per second (all batch rows counted)
