@@ -363,7 +363,8 @@ class EDR(Representation):
     def _fused_train(self, frames: torch.Tensor) -> torch.Tensor:
         """(B, T, C, H, W) -> (B, T, C' * 2 * K', H, W) in the compute dtype, differentiable."""
         b, t, c = frames.shape[:3]
-        if frames.requires_grad:  # EDR after a learned layer: torch differentiates the luma
+        if frames.requires_grad or frames.dtype not in (torch.uint8, torch.float32):
+            # EDR after a learned layer (torch differentiates the luma), or half-precision frames
             intensity = self._intensity(frames.flatten(0, 1)).unflatten(0, (b, t))
         else:
             gray = self.color == "gray" and c == 3
