@@ -271,14 +271,16 @@ class EDR(Representation):
         shape = (b, self.state_channels(c), self.k, h, w)
         if state is not None and tuple(state.ema.shape) != shape:
             raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")
-        if state is not None and not torch.isfinite(state.ema).all():
-            raise ValueError("state holds NaN or inf: start again from state=None (or reset)")
         if reset is not None:
             reset = torch.as_tensor(reset, dtype=torch.bool, device=frame.device).reshape(-1)
             if reset.numel() != b:
                 raise ValueError(
                     f"reset must have one flag per batch row ({b}), got {reset.numel()}"
                 )
+        if state is not None:  # rows that restart may hold anything: they are not read
+            kept = state.ema if reset is None else state.ema[~reset.to(state.ema.device)]
+            if not torch.isfinite(kept).all():
+                raise ValueError("state holds NaN or inf: start again from state=None (or reset)")
         if self.can_fuse(frame):
             if state is None:
                 ema = torch.empty(shape, dtype=torch.float32)
@@ -334,9 +336,9 @@ class EDR(Representation):
             response = ratio**beta
         on_th, off_th = (v.to(intensity).view(1, 1, -1, 1, 1) for v in self.thresholds())
         on, off = torch.relu(response - on_th), torch.relu(off_th - response)
-        if self.threshold == "hard":  # 0/1 events, with the soft ones' gradient as surrogate
-            on = on + ((response > on_th).to(on.dtype) - on).detach()
-            off = off + ((response < off_th).to(off.dtype) - off).detach()
+        if self.threshold == "hard":  # 0/1 events exactly, with the soft ones' gradient
+            on = (response > on_th).to(on.dtype) + (on - on.detach())
+            off = (response < off_th).to(off.dtype) + (off - off.detach())
         events = torch.stack((on, off), dim=3)  # (B, C', K', 2, H, W)
         return events.reshape(b, -1, h, w).to(self.out_dtype), EDRState(ema)
 
