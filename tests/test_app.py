@@ -66,7 +66,7 @@ def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
 @pytest.mark.slow
 def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
     bench.main(
-        ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0", "--frame-stack", "2",
+        ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0",
          "--train-frames", "40", "--out-dir", str(tmp_path / "bench")]
     )  # fmt: skip
     paths = {p.name.split("_")[1]: p for p in (tmp_path / "bench").glob("atari_*.json")}
@@ -76,8 +76,8 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     assert record["backend"] == "envpool" and record["train_fps"] > 0
     assert record["train_fps_steady"] > 0
     assert [row["name"] for row in record["rows"]] == [
-        "Pong: FDR RGB, 2 frames, float32",
-        "Pong: FDR RGB + EDR gray, 2 frames, float32",
+        "Pong: FDR RGB, float32",
+        "Pong: FDR RGB + EDR gray, float32",
     ]
     assert all(row["fps"] > 0 and row["frames"] == 6 for row in record["rows"])
     assert len(record["costs"]) == 2 and record["cost"] == statistics.median(record["costs"])
@@ -96,7 +96,7 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     )
     text = (tmp_path / "paper" / "atari_edr_cost.md").read_text()
     (row,) = [line for line in text.splitlines() if record_path.name in line]
-    assert row.startswith("| Pong | envpool | 2 | 2 | float32 |")
+    assert row.startswith("| Pong | envpool | 2 | 1 | float32 |")
     assert f"{record['cost']:.1f} %" in row and f"{record['train_fps']:,.0f} over 40" in row
     assert f"{record['train_fps_steady']:,.0f} steady" in row
     assert record["train_fps_fdr"] > 0 and record["train_fps_fdr_steady"] > 0

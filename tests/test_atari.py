@@ -10,7 +10,8 @@ import pytest
 import torch
 
 import edr.tasks.atari as atari
-from edr.rl.paac import PAACNetwork, n_step_returns
+from edr.models.paac import PAACNetwork
+from edr.rl.loss import n_step_returns
 from edr.run import run
 from edr.tasks.atari import evaluate_checkpoint, load_network
 from edr.validate import ConfigError

@@ -11,7 +11,7 @@ from torchrl.envs.utils import check_env_specs
 
 from edr.representations import EDR
 from edr.rl.envs import EnvPoolAtari, gym_atari, gym_image_env, make_atari_env
-from edr.rl.transform import FrameStack, ObservationFrame
+from edr.rl.transform import ObservationFrame
 
 
 def _frame_transform(env) -> ObservationFrame:
@@ -23,24 +23,22 @@ def _frame_transform(env) -> ObservationFrame:
     ("backend", "num_envs"), [("single", 1), ("serial", 2), ("parallel", 2), ("envpool", 2)]
 )
 def test_env_specs_hold_with_edr(backend: str, num_envs: int) -> None:
-    env = make_atari_env(
-        "Pong", num_envs=num_envs, backend=backend, edr=EDR(color="gray"), frame_stack=2
-    )
+    env = make_atari_env("Pong", num_envs=num_envs, backend=backend, edr=EDR(color="gray"))
     try:
         check_env_specs(env)
         batch = () if backend == "single" else (num_envs,)
-        assert env.observation_spec["observation"].shape == (*batch, 2 * (3 + 2), 84, 84)
+        assert env.observation_spec["observation"].shape == (*batch, 3 + 2, 84, 84)
         assert env.observation_spec["edr"].shape == (*batch, 2, 84, 84)
     finally:
         env.close()
 
 
 def test_observation_combinations() -> None:
-    for fdr, edr, stack, channels in (
-        ("gray", None, 4, 4),
-        ("none", EDR(half_lives=(1, 3.8), color="gray"), 1, 4),
+    for fdr, edr, channels in (
+        ("gray", None, 1),
+        ("none", EDR(half_lives=(1, 3.8), color="gray"), 4),
     ):
-        env = make_atari_env("Pong", backend="single", fdr=fdr, edr=edr, frame_stack=stack)
+        env = make_atari_env("Pong", backend="single", fdr=fdr, edr=edr)
         assert env.reset()["observation"].shape == (channels, 84, 84)
         env.close()
     with pytest.raises(ValueError, match="FDR, EDR or both"):
@@ -95,37 +93,28 @@ def test_partial_reset_restarts_only_that_env(mode: str) -> None:
 
 
 @pytest.mark.parametrize("fdr", ["gray", "rgb"])
-def test_frame_stack_holds_the_last_frames_and_restarts_per_env(fdr: str) -> None:
-    edr = EDR(color="gray")
-    env = make_atari_env("Pong", num_envs=3, backend="serial", fdr=fdr, edr=edr, frame_stack=3)
+def test_frames_restart_per_env_and_are_channels_last(fdr: str) -> None:
+    env = make_atari_env("Pong", num_envs=3, backend="serial", fdr=fdr, edr=EDR(color="gray"))
     env.set_seed(2)
     rollout = env.rollout(5, break_when_any_done=False)  # (3 envs, 5 steps)
-
-    def whole(key: str) -> torch.Tensor:  # (3, 6, ...): the reset's data, then every step's
-        return torch.cat([rollout[key][:, :1], rollout["next", key]], dim=1)
-
-    per_step = torch.cat([whole("fdr"), whole("edr")], dim=2)  # (3, 6, C + 2, H, W)
-    stacks = whole("observation")  # (3, 6, 3 * (C + 2), H, W)
-    for t in range(stacks.shape[1]):  # oldest first; the first frame repeats at the start
-        expected = torch.cat([per_step[:, max(t - k, 0)] for k in (2, 1, 0)], dim=1)
-        torch.testing.assert_close(stacks[:, t], expected)
+    frames = rollout["next", "observation"]  # (3, 5, C + 2, H, W)
+    torch.testing.assert_close(
+        frames, torch.cat([rollout["next", "fdr"], rollout["next", "edr"]], 2)
+    )
     mask = torch.tensor([[False], [True], [False]])
     out = env.reset(rollout[:, -1]["next"].clone().set("_reset", mask))
-    # channels-last in memory, as the network's trunk convolves it: it takes the stack uncopied
+    # channels-last in memory, as the network's trunk convolves it: it takes the frame uncopied
     assert out["observation"].is_contiguous(memory_format=torch.channels_last)
-    torch.testing.assert_close(out["observation"][[0, 2]], stacks[[0, 2], -1])
-    first = torch.cat([out["fdr"][1], out["edr"][1]])  # (C + 2, H, W): env 1's new first frame
-    torch.testing.assert_close(out["observation"][1], first.repeat(3, 1, 1))
+    torch.testing.assert_close(out["observation"][[0, 2]], frames[[0, 2], -1])  # kept
+    assert not out["edr"][1].any()  # env 1 restarted: its EMA starts from this frame, no events
     env.close()
-    with pytest.raises(ValueError, match="n >= 1"):
-        FrameStack(0)
 
 
-def test_a_stack_ring_gives_the_same_stacks_and_autograd_refuses_an_overwritten_one() -> None:
-    stacks, copies = {}, {}
+def test_a_frame_ring_gives_the_same_frames_and_autograd_refuses_an_overwritten_one() -> None:
+    frames, copies = {}, {}
     for ring in (None, 3):
         env = make_atari_env("Pong", num_envs=2, backend="serial", edr=EDR(color="gray"),
-                             frame_stack=2, stack_ring=ring)  # fmt: skip
+                             frame_ring=ring)  # fmt: skip
         env.set_seed(4)
         torch.manual_seed(4)  # the same random actions
         td, emitted, copies[ring] = env.reset(), [], []
@@ -134,37 +123,37 @@ def test_a_stack_ring_gives_the_same_stacks_and_autograd_refuses_an_overwritten_
             emitted.append(td["observation"])
             copies[ring].append(td["observation"].clone())  # before the ring comes round to it
             assert emitted[-1].is_contiguous(memory_format=torch.channels_last)
-        stacks[ring] = emitted
+        frames[ring] = emitted
         env.close()
-    ringed = stacks[3]
+    ringed = frames[3]
     assert ringed[0].data_ptr() == ringed[3].data_ptr() == ringed[6].data_ptr()  # reused
-    torch.testing.assert_close(copies[3], copies[None])  # each step's stack, as it was emitted
-    assert len({s.data_ptr() for s in stacks[None]}) == 7  # without a ring: a new one each step
+    torch.testing.assert_close(copies[3], copies[None])  # each step's frame, as it was emitted
+    assert len({s.data_ptr() for s in frames[None]}) == 7  # without a ring: a new one each step
 
-    env = make_atari_env("Pong", num_envs=2, backend="serial", edr=EDR(color="gray"), stack_ring=2)
+    env = make_atari_env("Pong", num_envs=2, backend="serial", edr=EDR(color="gray"), frame_ring=2)
     td = env.reset()
     td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
     weight = torch.ones(1, 5, 1, 1, requires_grad=True)
-    loss = torch.nn.functional.conv2d(td["observation"], weight).sum()  # saves the stack
+    loss = torch.nn.functional.conv2d(td["observation"], weight).sum()  # saves the frame
     for _ in range(2):  # the ring comes round to it
         td = env.step_and_maybe_reset(td.set("action", env.action_spec.rand()))[1]
     env.close()
     with pytest.raises(RuntimeError, match="modified by an inplace operation"):
         loss.backward()
     with pytest.raises(ValueError, match="2 buffers or more"):
-        FrameStack(2, ring=1)
+        ObservationFrame(ring=1)
 
 
 def test_float16_observation_is_the_float32_one_rounded() -> None:
     observations = {}
     for dtype in ("float32", "float16"):
         env = make_atari_env(
-            "Pong", backend="single", edr=EDR(color="gray"), frame_stack=2, obs_dtype=dtype
+            "Pong", num_envs=2, backend="serial", edr=EDR(color="gray"), obs_dtype=dtype
         )
         check_env_specs(env)
         env.set_seed(3)
         torch.manual_seed(3)  # the same random actions
-        observations[dtype] = env.rollout(4)["next", "observation"]  # (4, 2 * 5, H, W)
+        observations[dtype] = env.rollout(4)["next", "observation"]  # (2, 4, 5, H, W)
         assert env.observation_spec["observation"].dtype == getattr(torch, dtype)
         env.close()
     assert observations["float16"].dtype == torch.float16
@@ -200,10 +189,10 @@ def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
     monkeypatch.syspath_prepend(str(Path(__file__).parent))
     env = make_atari_env(
         "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
-        edr=EDR(color="gray"), frame_stack=2, keep_inputs=False,
+        edr=EDR(color="gray"), keep_inputs=False,
     )  # fmt: skip
     rollout = env.rollout(12, break_when_any_done=False)
-    assert rollout["next", "observation"].shape == (2, 12, 2 * (3 + 2), 84, 84)
+    assert rollout["next", "observation"].shape == (2, 12, 3 + 2, 84, 84)
     assert "pixels" not in rollout and "edr" not in rollout["next"]
     assert set(rollout["next", "reward"].unique().tolist()) <= {-1.0, 0.0, 1.0}
     env.close()

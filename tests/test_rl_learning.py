@@ -9,10 +9,10 @@ import pytest
 import torch
 from torchrl.envs import InitTracker
 
+from edr.models.paac import PAACNetwork
 from edr.representations import EDR
 from edr.rl.envs import make_atari_env
 from edr.rl.optim import TFRMSprop, make_optimizer
-from edr.rl.paac import PAACNetwork
 from edr.rl.rollout import Actor
 from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings, OptimSettings
 from edr.tasks.atari import train_paac
@@ -58,13 +58,13 @@ def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes(mon
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
     env = make_atari_env(
         "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
-        edr=EDR(color="gray"), frame_stack=2, keep_inputs=False,
+        edr=EDR(color="gray"), keep_inputs=False,
     )  # fmt: skip
     env.append_transform(InitTracker())
     env.set_seed(0)
     torch.manual_seed(0)
-    network = PAACNetwork(env.observation_spec["observation"].shape[-3], 3, "ftlstm")
-    actor, rewards, dones = Actor(env, network), [], []
+    network = PAACNetwork(2 * env.observation_spec["observation"].shape[-3], 3, "ftlstm")
+    actor, rewards, dones = Actor(env, network, frame_stack=2), [], []
     for _ in range(6):  # 30 steps: every episode (4 drops) ends within them
         rollout = actor.rollout(5)
         assert rollout.logits.shape == (2, 5, 3) and rollout.values.shape == (2, 5, 1)
@@ -187,37 +187,32 @@ def test_frames_conv_equals_the_convolution_of_the_stack() -> None:
         network(frames[:3], h, c, init)
 
 
-def test_actor_stacks_frames_as_the_env_would_across_restarts(monkeypatch) -> None:
-    """The network's input from an env of single frames, stacked by the Actor, equals the
-    stack an env that stacks 3 frames itself gives for the same actions (games end every 16
-    steps, so restarts repeat their first frame in both)."""
+def test_actor_stacks_the_last_frames_oldest_first_and_restarts_per_env(monkeypatch) -> None:
+    """The network's input at every step is the env's last 3 frames, oldest first, where an
+    env that (re)starts repeats its first frame (games end every 16 steps): checked against
+    the frames the env gave, stacked here one env at a time."""
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
-
-    def env(frame_stack: int):
-        made = make_atari_env(
-            "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
-            edr=EDR(color="gray"), frame_stack=frame_stack, keep_inputs=False, stack_ring=44,
-        )  # fmt: skip
-        made.append_transform(InitTracker())
-        made.set_seed(0)
-        return made
-
-    seen: list[torch.Tensor] = []
+    env = make_atari_env(
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
+        edr=EDR(color="gray"), keep_inputs=False, frame_ring=44,
+    )  # fmt: skip
+    env.append_transform(InitTracker())
+    env.set_seed(0)
+    seen: list[torch.Tensor] = []  # (2, 3 * 5, 84, 84) each step: what the network got
+    newest: list[tuple[torch.Tensor, torch.Tensor]] = []  # each step: (frame, is_init) per env
 
     class Spy(PAACNetwork):
         def forward(self, obs, h, c, is_init):
-            seen.append(torch.cat(list(obs), -3).clone())  # (2, 3 * 5, 84, 84)
+            seen.append(torch.cat(list(obs), -3).clone())
+            newest.append((obs[-1].clone(), is_init.reshape(-1).clone()))
             return super().forward(obs, h, c, is_init)
 
-    single, stacking = env(1), env(3)
     torch.manual_seed(0)
-    rollout = Actor(single, Spy(15, 3, "none"), frame_stack=3).rollout(40)
-    assert rollout.dones.any()
-    td = stacking.reset()
-    for t in range(40):
-        torch.testing.assert_close(seen[t], td["observation"], rtol=0, atol=0)
-        action = torch.nn.functional.one_hot(rollout.actions[:, t], 3)
-        _, td = stacking.step_and_maybe_reset(td.set("action", action))
-    torch.testing.assert_close(seen[40], td["observation"], rtol=0, atol=0)  # the bootstrap's
-    single.close()
-    stacking.close()
+    rollout = Actor(env, Spy(15, 3, "none"), frame_stack=3).rollout(40)
+    env.close()
+    assert rollout.dones.any() and len(seen) == 41  # 40 steps and the bootstrap's input
+    for e in range(2):
+        window: list[torch.Tensor] = []
+        for t, (frame, is_init) in enumerate(newest):
+            window = [frame[e]] * 3 if is_init[e] or not window else [*window[1:], frame[e]]
+            torch.testing.assert_close(seen[t][e], torch.cat(window), rtol=0, atol=0)

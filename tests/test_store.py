@@ -225,7 +225,8 @@ def test_a_truncated_record_names_itself_and_the_remedy(compose_config, tmp_path
 )  # fmt: skip
 def test_a_bad_value_is_one_line_before_any_work(compose_config, overrides, message, tmp_path):
     task = () if any(o.startswith("task=") for o in overrides) else ("task=kth",)
-    cache = () if "task=atari" in overrides else (f"task.cache_dir={tmp_path / 'cache'}",)
+    cache_key = "task.pretrain.cache_dir" if "task=dvs_transfer" in overrides else "task.cache_dir"
+    cache = () if "task=atari" in overrides else (f"{cache_key}={tmp_path / 'cache'}",)
     cfg = compose_config(*task, "debug=tiny", *overrides, *cache, f"out_dir={tmp_path / 'run'}")
     with pytest.raises(ConfigError) as caught:
         run(cfg)

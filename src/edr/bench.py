@@ -245,17 +245,10 @@ def main(argv: list[str] | None = None) -> None:
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"
     )
     parser.add_argument(
-        "--frame-stack",
-        type=int,
-        default=1,
-        help="frames the env stacks per observation (--atari; task=atari's: 1, as its network "
-        "takes the last 4 frames as they come)",
-    )
-    parser.add_argument(
         "--obs-dtype",
         choices=["float32", "float16"],
         default="float32",
-        help="the observation stack's dtype, float32 as task=atari trains (--atari)",
+        help="the observation's dtype, float32 as task=atari trains (--atari)",
     )
     parser.add_argument(
         "--out-dir", type=Path, default=Path("results/bench"), help="where the record is written"

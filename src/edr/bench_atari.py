@@ -37,7 +37,7 @@ class AtariThroughput:
 
 
 TRAIN_ROLLOUT_STEPS = 5  # task=atari's rollout length and frames per network input: they
-TRAIN_FRAME_STACK = 4  # size its ring of observations (its env stacks none, its network takes 4)
+TRAIN_FRAME_STACK = 4  # size its ring of observations (its network takes the last 4)
 BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl ParallelEnv",
                  "serial": "torchrl SerialEnv"}  # fmt: skip
 
@@ -76,15 +76,13 @@ def training_throughput(
 
 
 def atari_throughput(
-    game: str, num_envs: int, steps: int, repeats: int, warmup: int, frame_stack: int,
+    game: str, num_envs: int, steps: int, repeats: int, warmup: int,
     obs_dtype: str = "float32", backend: str = "parallel",
 ) -> AtariThroughput:  # fmt: skip
     """Agent steps per second of ``num_envs`` parallel envs, with and without the EDR transform.
 
-    Both use the paper's preset and RGB frames stacked ``frame_stack`` times by the env (1:
-    none, as ``task=atari`` builds its envs; its network takes the frames as they come); the
-    EDR run adds
-    EDR on gray (Appendix C's 5 channels per frame). Random actions; ``fps`` counts env steps of
+    Both use the paper's preset and RGB frames, one agent step's frame per observation, as
+    ``task=atari`` builds its envs; the EDR run adds EDR on gray (Appendix C's 5 channels). Random actions; ``fps`` counts env steps of
     all envs. The two envs live side by side and take turns (in alternating order), so that load
     drifts hit both alike; each plays on from where its last rollout stopped, as in training.
     """
@@ -98,10 +96,9 @@ def atari_throughput(
             num_envs=num_envs,
             backend=backend,
             edr=edr,
-            frame_stack=frame_stack,
             obs_dtype=obs_dtype,
             keep_inputs=False,  # as task=atari trains: the observation alone
-            stack_ring=observations_held(TRAIN_ROLLOUT_STEPS, TRAIN_FRAME_STACK),
+            frame_ring=observations_held(TRAIN_ROLLOUT_STEPS, TRAIN_FRAME_STACK),
         )
         for edr in configs.values()
     ]
@@ -133,7 +130,7 @@ def atari_throughput(
     implementation = f"{BACKEND_NAMES[backend]}, {num_envs} envs, paac preset"
     frames = steps * num_envs
     rows = [
-        BenchRow(f"{game}: {name}, {frame_stack} frames, {obs_dtype}", implementation, frames, "84x84",
+        BenchRow(f"{game}: {name}, {obs_dtype}", implementation, frames, "84x84",
             statistics.median(t), frames / statistics.median(t))
         for name, t in zip(configs, wall, strict=True)
     ]  # fmt: skip
@@ -150,8 +147,7 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
     records = []
     for backend in args.backends.split(","):
         result = atari_throughput(
-            args.game, args.atari, args.steps, repeats, args.warmup, args.frame_stack,
-            args.obs_dtype, backend,
+            args.game, args.atari, args.steps, repeats, args.warmup, args.obs_dtype, backend,
         )  # fmt: skip
         training = {}  # train_fps(_steady): FDR + EDR, as before; train_fps_fdr(_steady): FDR
         for inputs, key in (("fdr", "train_fps_fdr"), ("fdr_edr", "train_fps")):
@@ -161,7 +157,7 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
             training[key], training[f"{key}_steady"] = fps
         record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                   "game": args.game, "num_envs": args.atari, "backend": backend,
-                  "frame_stack": args.frame_stack, "obs_dtype": args.obs_dtype,
+                  "obs_dtype": args.obs_dtype,
                   "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
                   "train_frames": args.train_frames, **training,
                   "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip

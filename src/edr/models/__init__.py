@@ -1,4 +1,5 @@
-"""Backbones for video recognition: LTC, and per-frame ConvNets with a recurrent head."""
+"""Networks: the video recognition backbones (LTC, and per-frame ConvNets with a recurrent
+head) and PAAC's actor-critic network for Atari (:mod:`edr.models.paac`)."""
 
 from edr.models.convnets import LeNet, NiN
 from edr.models.ltc import LTC

@@ -27,7 +27,7 @@ def feature_tracking_weights(gates: int, channels: int, locations: int) -> nn.Pa
 def track_features(state: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     """The feature-tracking recurrence: state (B, C, P) through weights (G, C, P, P) ->
     (B, G, C, P), each gate's recurrent term; within each channel every location reaches every
-    location, and no channel reads another (FT-RCN here, FT-LSTM in :mod:`edr.rl.paac`)."""
+    location, and no channel reads another (FT-RCN here, FT-LSTM in :mod:`edr.models.paac`)."""
     return torch.einsum("bcp,gcpq->bgcq", state, weights)
 
 

@@ -168,7 +168,7 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
         if r.get("train_fps_fdr"):
             train += f" (FDR: {r['train_fps_fdr']:,.0f}; {r['train_fps_fdr_steady']:,.0f} steady)"
         lines.append(
-            f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r['frame_stack']} | "
+            f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r.get('frame_stack', 1)} | "
             f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "
             f"{edr['fps']:,.1f} | {r['cost']:.1f} % | {len(costs)}: {min(costs):.1f} to "
             f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | {train} | "

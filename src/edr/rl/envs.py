@@ -15,8 +15,8 @@ Presets (the same on every backend):
 
 Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3
 or gray 1 channel, /255) and/or EDR events computed on the fly, written in one pass
-(``ObservationFrame``), stacked over ``frame_stack`` agent steps (``FrameStack``; ``task=atari``
-stacks none here: its actor hands the network the last frames as they are).
+(``ObservationFrame``), one agent step's frame: the network's window of the last frames is
+its actor's (``edr.rl.rollout.Actor``).
 The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 """
 
@@ -49,7 +49,7 @@ from torchrl.envs import (
 )
 
 from edr.representations import EDR
-from edr.rl.transform import FrameStack, ObservationFrame
+from edr.rl.transform import ObservationFrame
 
 gym.register_envs(ale_py)
 
@@ -240,10 +240,9 @@ def make_atari_env(
     module: str | None = None,
     fdr: Literal["rgb", "gray", "none"] = "rgb",
     edr: EDR | None = None,
-    frame_stack: int = 1,
     obs_dtype: Literal["float32", "float16"] = "float32",
     keep_inputs: bool = True,
-    stack_ring: int | None = None,
+    frame_ring: int | None = None,
 ) -> TransformedEnv:
     """A torchrl env of ``num_envs`` Atari games with the observation the config asks for.
 
@@ -251,9 +250,8 @@ def make_atari_env(
 
     ``keep_inputs=True`` also keeps the pixels, and FDR and EDR as ``fdr`` and ``edr`` (views of
     the frame's channels); False: a training rollout stores the observation alone.
-    ``stack_ring=k``: the observations cycle through ``k`` buffers (:class:`ObservationFrame`, or
-    :class:`FrameStack` when it stacks), each overwritten ``k`` steps after it was emitted; None:
-    a new tensor every step.
+    ``frame_ring=k``: the observations cycle through ``k`` buffers (:class:`ObservationFrame`),
+    each overwritten ``k`` steps after it was emitted; None: a new tensor every step.
     """
     if fdr == "none" and edr is None:
         raise ValueError("the observation needs FDR, EDR or both")
@@ -279,12 +277,11 @@ def make_atari_env(
         transforms.append(SignTransform(in_keys=["reward"]))
     if obs_dtype not in ("float32", "float16"):
         raise ValueError(f"obs_dtype must be float32 or float16, got {obs_dtype!r}")
-    stacked = frame_stack > 1 or obs_dtype != "float32"
     transforms.append(
-        ObservationFrame(fdr, edr, keep_parts=keep_inputs, ring=None if stacked else stack_ring)
+        ObservationFrame(
+            fdr, edr, keep_parts=keep_inputs, ring=frame_ring, dtype=getattr(torch, obs_dtype)
+        )
     )
-    if stacked:
-        transforms.append(FrameStack(frame_stack, dtype=getattr(torch, obs_dtype), ring=stack_ring))
     if not keep_inputs:
         transforms.append(ExcludeTransform("pixels"))
     return TransformedEnv(base, Compose(*transforms))

@@ -17,13 +17,13 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
-from edr.rl.paac import PAACNetwork
+from edr.models.paac import PAACNetwork
 
 
 def observations_held(rollout_steps: int, frame_stack: int = 1) -> int:
     """How many observations an :class:`Actor` holds at once: a rollout's graph keeps the
     ``rollout_steps + frame_stack - 1`` frames its steps saw while the env writes the next one
-    (the size of a ``FrameStack`` ring that never overwrites one still in use)."""
+    (the size of an ``ObservationFrame`` ring that never overwrites one still in use)."""
     return rollout_steps + frame_stack
 
 

@@ -9,10 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from edr.models.paac import Core, Init
 from edr.representations import EDR
 from edr.rl.envs import Backend, Preset
 from edr.rl.optim import OptimizerName
-from edr.rl.paac import Core, Init
 from edr.validate import (
     AtariGame,
     Fraction,

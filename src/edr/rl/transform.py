@@ -1,15 +1,15 @@
-"""Streaming torchrl transforms for the Atari observation: its frame (FDR and EDR's events, in
-one pass) and a frame stack.
+"""The streaming torchrl transform of the Atari observation: its frame, FDR and EDR's events
+written in one pass.
 
-Both carry one state per env across agent steps and restart it exactly where an env resets: on
+It carries one state per env across agent steps and restarts it exactly where an env resets: on
 a partial reset only the envs whose ``_reset`` flag is set restart from their new first input;
 the others keep their state and their last output. EDR's EMA therefore runs across steps (the
-authors' code restarted it at every step).
+authors' code restarted it at every step). The frames are not stacked here: the network's
+window of the last frames is :class:`edr.rl.rollout.Actor`'s.
 """
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -119,17 +119,21 @@ class _Ring:
 
 class ObservationFrame(_PerEnvStream):
     """Pixels (..., H, W, 3) uint8, as envs give them -> one observation frame (..., C, H, W)
-    float32, channels-last in memory (as the PAAC trunk convolves it): FDR (``fdr``: the RGB
-    pixels / 255, their luma / 255, or none) then EDR's events (``edr``; its EMA runs per env),
-    written in one pass over the pixels by ``kernels.frame_kernel``, on the calling thread.
+    float32 (or ``dtype``), channels-last in memory (as the PAAC trunk convolves it): FDR
+    (``fdr``: the RGB pixels / 255, their luma / 255, or none) then EDR's events (``edr``; its
+    EMA runs per env), written in one pass over the pixels by ``kernels.frame_kernel``, on the
+    calling thread, each pixel's channels stored together.
 
-    One pass where FDR's conversion, EDR's step and joining the two took three, each with its
-    own torch ops; each pixel's channels stored together, at a stride numba compiles in (16 Pong
-    envs: the frame with EDR 0.22 ms, without 0.11 ms; before, 0.36 and 0.14).
     Pixels other than uint8, or an EDR the kernel cannot run (``fast=False``, learnable,
-    float64), take torch's path, to the same numbers. ``keep_parts`` also writes ``fdr`` and
-    ``edr``: views of the frame's channels. ``ring=k``: the frames cycle through ``k`` buffers
-    (see :class:`FrameStack`).
+    float64), take torch's path, to the same numbers. ``dtype=torch.float16`` halves the bytes
+    each step hands on (the frame is computed in float32, then rounded; the network converts it
+    back). ``keep_parts`` also writes ``fdr`` and ``edr``: views of the frame's channels.
+
+    ``ring=k`` writes the frames into ``k`` buffers in turn instead of a new tensor each step
+    (the page faults of a fresh tensor each step), so a frame is overwritten ``k`` steps after it
+    was emitted: whoever holds frames longer must copy them. Autograd guards a network that saved
+    one: its backward then fails ("modified by an inplace operation") rather than use the wrong
+    frame.
     """
 
     def __init__(
@@ -140,13 +144,16 @@ class ObservationFrame(_PerEnvStream):
         out_key: str = "observation",
         keep_parts: bool = False,
         ring: int | None = None,
+        dtype: torch.dtype = torch.float32,
     ) -> None:
         super().__init__([in_key], [out_key])
+        if dtype not in (torch.float32, torch.float16):
+            raise ValueError(f"the frame's dtype must be float32 or float16, got {dtype}")
         if fdr not in ("rgb", "gray", "none"):
             raise ValueError(f"fdr must be rgb, gray or none, got {fdr!r}")
         if fdr == "none" and edr is None:
             raise ValueError("the observation needs FDR, EDR or both")
-        self.fdr, self.edr, self.keep_parts = fdr, edr, keep_parts
+        self.fdr, self.edr, self.keep_parts, self.dtype = fdr, edr, keep_parts, dtype
         self._ring = _Ring(ring)
         self._ema: torch.Tensor | None = None  # (N, C', K, H * W) EDR's state
 
@@ -166,23 +173,28 @@ class ObservationFrame(_PerEnvStream):
         n, c_in, h, w = x.shape
         c_fdr, c_edr = self._channels(c_in)
         if restart.any() or self._last is None:
-            out = torch.empty(n, c_fdr + c_edr, h, w, memory_format=torch.channels_last)
+            out = torch.empty(
+                n, c_fdr + c_edr, h, w, dtype=self.dtype, memory_format=torch.channels_last
+            )
         else:
             out = self._ring.next(self._last)
+        frame = out if out.dtype == torch.float32 else torch.empty_like(out, dtype=torch.float32)
         if x.dtype != torch.uint8 or (self.edr is not None and not self.edr.can_fuse(x)):
-            self._torch_frame(x, ema, restart, out)
-            return out
-        planar = c_in == 1 or not x.permute(0, 2, 3, 1).is_contiguous()
-        pixels = x.contiguous().view(n, 1, c_in, h * w) if planar else (
-            x.permute(0, 2, 3, 1).view(n, 1, 1, h * w * c_in))  # fmt: skip
-        kernels.launch(
-            kernels.frame_kernel, n * h * w, pixels.numpy(), 0 if planar else c_in, (0,) * c_fdr,
-            self.fdr == "gray" and c_in == 3, (0,) * c_edr,
-            *(self.edr.kernel_args(c_in) if self.edr is not None else KernelArgs.unused()),
-            ema.numpy(),
-            restart, out.permute(0, 2, 3, 1).view(n, h * w * (c_fdr + c_edr)).numpy(),
-        )  # fmt: skip
-        increment_version(out)  # written through numpy: autograd must see a ring buffer's reuse
+            self._torch_frame(x, ema, restart, frame)
+        else:
+            planar = c_in == 1 or not x.permute(0, 2, 3, 1).is_contiguous()
+            pixels = x.contiguous().view(n, 1, c_in, h * w) if planar else (
+                x.permute(0, 2, 3, 1).view(n, 1, 1, h * w * c_in))  # fmt: skip
+            kernels.launch(
+                kernels.frame_kernel, n * h * w, pixels.numpy(), 0 if planar else c_in,
+                (0,) * c_fdr, self.fdr == "gray" and c_in == 3, (0,) * c_edr,
+                *(self.edr.kernel_args(c_in) if self.edr is not None else KernelArgs.unused()),
+                ema.numpy(),
+                restart, frame.permute(0, 2, 3, 1).view(n, h * w * (c_fdr + c_edr)).numpy(),
+            )  # fmt: skip
+            increment_version(frame)  # written through numpy: autograd must see a ring's reuse
+        if frame is not out:
+            out.copy_(frame)
         return out
 
     def _torch_frame(
@@ -239,68 +251,6 @@ class ObservationFrame(_PerEnvStream):
         for key, channels in parts.items():
             if channels:
                 observation_spec[key] = Unbounded(
-                    shape=(*batch, channels, h, w), dtype=torch.float32, device=pixels.device
+                    shape=(*batch, channels, h, w), dtype=self.dtype, device=pixels.device
                 )
-        return observation_spec
-
-
-class FrameStack(_PerEnvStream):
-    """The images under ``in_keys`` (each (..., C_i, H, W)) concatenated on the channel axis and
-    stacked over the last ``n`` steps, oldest first -> ``out_key`` (..., n * sum(C_i), H, W).
-
-    An env that (re)starts repeats its first frame ``n`` times (as ``CatFrames(padding="same")``).
-    The stack is channels-last in memory, as the PAAC trunk convolves it (no copy there).
-    ``dtype=torch.float16`` halves the bytes each step writes (the network converts it back).
-    Each step writes one new stack in one pass, where torchrl's ``CatTensors`` then ``CatFrames``
-    take five (cat; roll, copy, write, clone) and three allocations. The inputs stay as they are.
-
-    ``ring=k`` writes the stacks into ``k`` buffers in turn instead of a new tensor each step
-    (16 Pong envs, 20 channels: ~1 ms less per step, the page faults of a fresh 9 MB tensor),
-    so a stack is overwritten ``k`` steps after it was emitted: whoever holds stacks longer
-    must copy them. Autograd guards a network that saved one: its backward then fails
-    ("modified by an inplace operation") rather than use the wrong frames.
-    """
-
-    def __init__(
-        self,
-        n: int,
-        in_keys: Sequence[str] = ("observation",),
-        out_key: str = "observation",
-        dtype: torch.dtype | None = None,
-        ring: int | None = None,
-    ) -> None:
-        super().__init__(in_keys, [out_key])
-        if n < 1:
-            raise ValueError(f"FrameStack needs n >= 1, got {n}")
-        self.n = n
-        self.dtype = dtype  # of the stack; None: the inputs' promoted dtype
-        self._ring = _Ring(ring)  # each (N, n * C, H, W)
-
-    def _input(self, tensordict: TensorDictBase) -> list[torch.Tensor]:
-        """-> one (N, C_i, H, W) tensor per in_key."""
-        parts = (tensordict.get(key) for key in self.in_keys)
-        return [p.reshape(-1, *p.shape[-3:]) for p in parts]
-
-    def _restart(self, x: list[torch.Tensor], rows: torch.Tensor | None) -> torch.Tensor:
-        frame = torch.cat(x if rows is None else [p[rows] for p in x], dim=1)
-        stack = frame.repeat(1, self.n, 1, 1)
-        return stack.to(self.dtype or frame.dtype, memory_format=torch.channels_last)
-
-    def _advance(self, x: list[torch.Tensor]) -> torch.Tensor:
-        stack = self._ring.next(self._last)  # not the last's memory: it is read here
-        start = stack.shape[1] - sum(p.shape[1] for p in x)  # where the newest frame begins
-        stack[:, :start] = self._last[:, stack.shape[1] - start :]
-        for part in x:
-            stack[:, start : start + part.shape[1]] = part
-            start += part.shape[1]
-        return stack
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        specs = [observation_spec[key] for key in self.in_keys]
-        first = specs[0]
-        channels = self.n * sum(spec.shape[-3] for spec in specs)
-        dtype = self.dtype or functools.reduce(torch.promote_types, (s.dtype for s in specs))
-        observation_spec[self.out_keys[0]] = Unbounded(
-            shape=(*first.shape[:-3], channels, *first.shape[-2:]), dtype=dtype, device=first.device
-        )
         return observation_spec

@@ -2,7 +2,7 @@
 
 Top to bottom: envs and network; the loop (:class:`edr.rl.rollout.Actor` plays
 ``rollout_steps`` steps of every env, the network's outputs kept for the loss; n-step returns
-bootstrapped from the value of the state after the rollout; PAAC's loss (:func:`edr.rl.paac.paac_loss`); Adam or PAAC's TensorFlow-style RMSprop with the
+bootstrapped from the value of the state after the rollout; PAAC's loss (:func:`edr.rl.loss.paac_loss`); Adam or PAAC's TensorFlow-style RMSprop with the
 gradient's L2 norm clipped and the learning rate decaying linearly to 0); checkpoints; then
 ``eval_plays`` full games scored (min / max / mean, Table 1's columns) and the training curve
 (score against env steps).
@@ -35,12 +35,13 @@ from edr.checkpoints import (
     save_checkpoint,
 )
 from edr.models.dead_units import DeadUnits
+from edr.models.paac import PAACNetwork
 from edr.rebuild import UntrustedRecord, instantiate_from_record
 from edr.records import read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
+from edr.rl.loss import n_step_returns, paac_loss
 from edr.rl.optim import make_optimizer
-from edr.rl.paac import PAACNetwork, n_step_returns, paac_loss
 from edr.rl.rollout import Actor, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
@@ -96,7 +97,7 @@ def train_paac(
     net, arguments = _network(env_kwargs, network, env.frame_stack)
     envs = _env(
         num_envs=env.num_envs, backend=backend, keep_inputs=False,
-        stack_ring=observations_held(loss.rollout_steps, env.frame_stack), **env_kwargs,
+        frame_ring=observations_held(loss.rollout_steps, env.frame_stack), **env_kwargs,
     )  # fmt: skip
     envs.set_seed(seed)
     actor = Actor(envs, net, env.frame_stack)

@@ -8,6 +8,7 @@ binned to one [ON, OFF] frame per video frame interval, like EDR's output.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,17 @@ from edr.representations import EDR, DVSSimulator, events_to_frames
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted
-from edr.validate import DataRoot, ExistingDir, Fraction, NonNegativeInt, PositiveFloat, PositiveInt
+from edr.validate import ExistingDir, Fraction, NonNegativeInt, PositiveFloat, PositiveInt
+
+KTH_SETTINGS = ("videos", "synthetic", "data_root", "cache_dir", "resize", "max_frames", "frames",
+                "crop")  # fmt: skip
+
+
+def kth_settings(pretrain: Callable[..., Fitted]) -> dict[str, Any]:
+    """The KTH data settings the pre-training reads (its config's, else its defaults): the
+    simulator records the same videos, decoded, resized and cropped as the network saw them."""
+    parameters = inspect.signature(pretrain).parameters
+    return {name: parameters[name].default for name in KTH_SETTINGS}
 
 
 def _event_clip(
@@ -75,17 +86,9 @@ def dvs_transfer(
     seed: int,
     pretrain: Callable[..., Fitted],
     optimizer: Callable[..., torch.optim.Optimizer],
-    videos: Callable[..., VideoSet],
-    synthetic: Callable[..., Path],
-    data_root: DataRoot | None = None,
-    cache_dir: str = "results/cache",
     dvs_root: ExistingDir | None = None,
     simulator: dict[str, float] | None = None,
     streams_per_class: PositiveInt = 10,
-    resize: tuple[PositiveInt, PositiveInt] = (89, 67),
-    max_frames: PositiveInt | None = 90,
-    frames: PositiveInt = 60,
-    crop: PositiveInt = 58,
     train_fraction: Fraction = 0.7,
     finetune_epochs: NonNegativeInt = 20,
     batch_size: PositiveInt = 8,
@@ -94,7 +97,8 @@ def dvs_transfer(
 ) -> dict[str, Any]:
     """Pre-train on KTH with EDR, then fine-tune and test on event-camera frames; returns metrics.
 
-    ``resume`` continues the pre-training from its checkpoint; fine-tuning is short and reruns.
+    The KTH videos the simulator records, and their frames and crop, are the pre-training's
+    (``pretrain``'s settings). ``resume`` continues the pre-training from its checkpoint; fine-tuning is short and reruns.
     """
     # ---- 1. the ConvNet+RCN trained on KTH with EDR ------------------------------------------
     pretrain_dir = out_dir / "pretrain"
@@ -110,7 +114,10 @@ def dvs_transfer(
 
     # ---- 2. event recordings, as [ON, OFF] frames -------------------------------------------
     sim = DVSSimulator(**(simulator or {}))
-    root = resolve_root(data_root, synthetic, cache_dir)
+    kth = kth_settings(pretrain)
+    videos: Callable[..., VideoSet] = kth["videos"]
+    frames, crop, cache_dir = kth["frames"], kth["crop"], kth["cache_dir"]
+    root = resolve_root(kth["data_root"], kth["synthetic"], cache_dir)
     classes = videos(root, train=True).classes
     clips, labels = [], []
     if dvs_root:
@@ -125,7 +132,9 @@ def dvs_transfer(
     else:
         source_name = f"DVS simulator on {streams_per_class} videos per class of {root}"
         fingerprint = pretrained["data/fingerprint"]
-        frame_source = VideoSource(cache_dir, size=tuple(resize), gray=True, max_frames=max_frames)
+        frame_source = VideoSource(
+            cache_dir, size=tuple(kth["resize"]), gray=True, max_frames=kth["max_frames"]
+        )
         pool = [v for split in (True, False) for v in videos(root, train=split).videos]
         chosen = [
             v
@@ -165,7 +174,7 @@ def dvs_transfer(
     scores, confusion = classification_metrics(predicted, true, classes)
     write_json_atomic(out_dir / CONFUSION, confusion)
     save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
-    real = (data_root is not None) + (dvs_root is not None)  # KTH videos, event recordings
+    real = (kth["data_root"] is not None) + (dvs_root is not None)  # KTH videos, event recordings
     return {
         "data/source": ("generated", "mixed", "real")[real],
         "data/synthetic": real < 2,
