@@ -35,7 +35,7 @@ paper-tiny: setup
 
 # paper/ as committed: the largest-scale records there are (Table 1: the Pong runs of
 # results/learning/table1_pong; the other tables: the tiny sweeps), and the bench records.
-PAPER_RUNS := results/learning/table1_pong $(filter-out results/sweeps/tiny/table1,$(wildcard results/sweeps/tiny/*))
+PAPER_RUNS := results/learning/table1_pong results/learning/learnable_edr $(filter-out results/sweeps/tiny/table1,$(wildcard results/sweeps/tiny/*))
 paper: setup
 	$(BIN)/edr-tables $(addprefix --runs ,$(PAPER_RUNS))
 

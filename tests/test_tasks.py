@@ -59,6 +59,36 @@ def test_kth_tiny_run_writes_record_checkpoint_and_figures(compose_config, tmp_p
     assert model(torch.zeros(1, 8, 1, 24, 24)).shape == (1, 6)
 
 
+def test_a_learnable_edr_run_logs_its_values_and_a_divergence_is_a_result(
+    compose_config, tmp_path, cache, monkeypatch
+) -> None:
+    """A learnable EDR's half-life, beta, nu and gradient norm go into the history each epoch
+    and its final values into the metrics; a loss that stops being a number ends training
+    there, recorded as diverged with its step (no crash, no accuracy averaged)."""
+    overrides = ("task=kth", "debug=tiny", "representation.learnable=true",
+                 f"task.cache_dir={cache}")  # fmt: skip
+    metrics = run(compose_config(*overrides, f"out_dir={tmp_path / 'fine'}"))
+    history = json.loads((tmp_path / "fine" / "history.json").read_text())
+    assert all(row["edr/grad_norm"] > 0 and "edr/tau_0" in row for row in history)
+    assert metrics["edr/tau_0"] != 3.8 and history[-1]["edr/tau_0"] == metrics["edr/tau_0"]
+    assert "train/diverged_step" not in metrics and metrics["eval/accuracy"] >= 0
+
+    calls = []
+
+    class NaNAtStep3(torch.nn.CrossEntropyLoss):
+        def forward(self, logits, labels):
+            calls.append(1)
+            loss = super().forward(logits, labels)
+            return loss * float("nan") if len(calls) == 3 else loss
+
+    monkeypatch.setattr(recognition.nn, "CrossEntropyLoss", NaNAtStep3)
+    metrics = run(compose_config(*overrides, f"out_dir={tmp_path / 'diverged'}"))
+    record = json.loads((tmp_path / "diverged" / "run.json").read_text())
+    assert record["status"] == "finished"  # a diverged run is a result, kept as one
+    assert metrics["train/diverged_step"] == 3 and metrics["train/diverged_epoch"] == 2
+    assert np.isnan(metrics["eval/accuracy"]) and metrics["train/epochs"] == 1
+
+
 def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(compose_config, tmp_path, cache) -> None:
     metrics = run(
         compose_config(

@@ -28,6 +28,7 @@ from edr.report.figures import (
     fig7b_dvs_confusion,
     fig10_kth_curves,
     fig11_activation_sparsity,
+    learnable_edr_curves,
     write_figure,
 )
 from edr.report.flow_accuracy import flow_accuracy_table
@@ -101,6 +102,10 @@ def render_all(
         "figure11_activation_sparsity": (
             "Figure 11: activation sparsity per layer",
             fig11_activation_sparsity(runs),
+        ),
+        "learnable_edr": (
+            "Learnable EDR: its values and gradient norm per epoch",
+            learnable_edr_curves(runs),
         ),
         "atari_performance_profile": (
             "Performance profile of human-normalised Atari scores",

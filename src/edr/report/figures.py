@@ -19,7 +19,7 @@ import pandas as pd
 
 from edr.atomic import atomic_path, save_figure, write_text_atomic
 from edr.report.atari import atari_runs, normalised_scores
-from edr.report.recognition import without_ablations
+from edr.report.recognition import learnable_runs, without_ablations
 from edr.report.render import provenance
 from edr.report.runs import CELL_KEYS, finished
 from edr.rl.settings import INPUT_NAMES
@@ -122,6 +122,36 @@ def fig10_kth_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
         done, "choices.backbone", ["choices.representation", "scale"], "epoch", "eval/accuracy",
         "Figure 10: KTH test accuracy during training", "epoch", "test video accuracy",
     )  # fmt: skip
+
+
+LEARNABLE_PANELS = {"edr/tau_0": "half-life (frames)", "edr/beta_0": "beta", "edr/nu_on_0": "nu_on",
+                    "edr/grad_norm": "EDR layer's gradient norm"}  # fmt: skip
+
+
+def learnable_edr_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
+    """A learnable EDR's half-life, beta and nu_on after each epoch, and its gradient's norm
+    (the epoch's mean), per parameterisation: mean and min-max band over seeds."""
+    done = learnable_runs(runs)
+    done = done[done["choices.ablation"].str.startswith("learnable")] if not done.empty else done
+
+    def draw() -> plt.Figure | None:
+        fig, axes = plt.subplots(1, len(LEARNABLE_PANELS), figsize=(16, 3.5))
+        drawn = [
+            _draw_curves(ax, done, ["choices.ablation", "scale"], "epoch", key)
+            for ax, key in zip(axes, LEARNABLE_PANELS, strict=True)
+        ]
+        if not any(drawn):
+            plt.close(fig)
+            return None
+        for ax, label in zip(axes, LEARNABLE_PANELS.values(), strict=True):
+            ax.set(xlabel="epoch", ylabel=label)
+        axes[-1].set_yscale("log")
+        fig.suptitle("Learnable EDR trained with LeNet + FT-RCN: its values and gradient per epoch",
+                     fontsize=10)  # fmt: skip
+        fig.tight_layout()
+        return fig
+
+    return done, draw
 
 
 def _cell_means(

@@ -15,6 +15,15 @@ from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
 
 ACCURACY = "metrics.eval/accuracy"
 ABLATION_KEYS = ("half_lives", "beta", "nu_on", "nu_off", "threshold", "return_form", "combine")
+LEARNABLE = {  # the ablations the learnable-EDR block compares, with FDR, as its rows say them
+    "paper": "EDR, fixed (the paper's values)",
+    "learnable_log": "EDR, learnable (tau through its log)",
+    "learnable_bounded": "EDR, learnable (bounded: sigmoids, exp)",
+}
+LEARNED = {"tau_0": "half_lives", "beta_0": "beta", "nu_on_0": "nu_on", "nu_off_0": "nu_off"}
+LEARNED_COLUMNS = {"tau_0": "Half-life (frames)", "beta_0": "beta", "nu_on_0": "nu_on",
+                   "nu_off_0": "nu_off"}  # fmt: skip
+DIVERGED = "metrics.train/diverged_step"
 
 
 def without_ablations(runs: pd.DataFrame) -> pd.DataFrame:
@@ -256,6 +265,8 @@ def _setting(values: Sequence[Any]) -> str:
 
 def ablation_edr(runs: pd.DataFrame) -> Table:
     done = finished(runs, "kth", only_ablations)
+    if not done.empty:  # learnable EDR has its own block, beside FDR
+        done = done[~done["choices.ablation"].str.startswith("learnable")]
     keys = [f"config.representation.{k}" for k in ABLATION_KEYS]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], ["choices.ablation", *keys])
     frame = pd.DataFrame()
@@ -278,13 +289,89 @@ def ablation_edr(runs: pd.DataFrame) -> Table:
                 "Runs": grouped["runs"],
             }
         )
+    learnable = learnable_runs(runs)
     return Table(
         "ablation_edr",
         "Ablations of EDR on KTH (LeNet + FT-RCN): one change each from the paper's EDR",
         frame,
-        done,
+        pd.concat([done, learnable]).drop_duplicates("record"),
         notes=[
             "`paper`: the paper's EDR (half-life 3.8 frames, ratio, soft, nu 0.05, beta 1); "
             "each other row changes what conf/ablation/<name>.yaml says."
         ],
+        extra=_learnable_block(learnable),
+    )
+
+
+def learnable_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """The runs of the learnable-EDR comparison: fixed and learnable EDR (``ablation=paper``,
+    ``learnable_*``), and FDR with the same backbone at the same scales, as its control."""
+    done = finished(runs, "kth", only_ablations)
+    edr = done[done["choices.ablation"].isin(list(LEARNABLE))] if not done.empty else done
+    if edr.empty or not edr["choices.ablation"].str.startswith("learnable").any():
+        return edr.iloc[:0]
+    plain = finished(runs, "kth", without_ablations)
+    fdr = plain[
+        (plain["choices.representation"] == "fdr")
+        & plain["scale"].isin(set(edr["scale"]))
+        & plain["choices.backbone"].isin(set(edr["choices.backbone"]))
+    ]
+    return pd.concat([fdr.assign(**{"choices.ablation": "fdr"}), edr])
+
+
+def _learned_value(grouped: pd.Series, key: str, configured: Any) -> str:
+    """A learned value as mean +- std over seeds, or the configured one when it is fixed."""
+    mean = grouped.get(f"metrics.edr/{key}:mean", float("nan"))
+    if pd.notna(mean):
+        return mean_std(mean, grouped[f"metrics.edr/{key}:std"], fmt=".3g")
+    return f"{_setting(configured)} (fixed)" if configured is not None else "—"
+
+
+def _learnable_block(runs: pd.DataFrame) -> str:
+    """Markdown: accuracy, divergences and final values of fixed vs learnable EDR vs FDR."""
+    if runs.empty:
+        return ""
+    runs = runs.assign(diverged=runs[DIVERGED].notna() if DIVERGED in runs else False)
+    metrics = [ACCURACY, "diverged", *(f"metrics.edr/{k}" for k in LEARNED)]
+    keys = [f"config.representation.{k}" for k in LEARNED.values()]
+    for key in [*metrics, *keys]:
+        if key not in runs:
+            runs[key] = float("nan") if key.startswith("metrics") else None
+    grouped = cells(runs, metrics, ["choices.ablation", *keys])
+    order = ["fdr", *LEARNABLE]
+    grouped = grouped.sort_values("choices.ablation", key=lambda c: c.map(order.index))
+    rows = []
+    for _, g in grouped.iterrows():
+        ablation = g["choices.ablation"]
+        learned = {
+            name: "—" if ablation == "fdr" else _learned_value(
+                g, key, g[f"config.representation.{LEARNED[key]}"] if ablation == "paper" else None
+            )
+            for key, name in LEARNED_COLUMNS.items()
+        }  # fmt: skip
+        rows.append(
+            {
+                "Input": LEARNABLE.get(ablation, "FDR (frames, no EDR)"),
+                "Data": g["data.source"],
+                "Scale": g["scale"],
+                "Accuracy (%)": mean_std(g[f"{ACCURACY}:mean"], g[f"{ACCURACY}:std"], 100),
+                "Runs": g["runs"],
+                "Diverged": round(g["diverged:mean"] * g["runs"]),
+                **learned,
+            }
+        )
+    return "\n".join(
+        [
+            "## Learnable EDR, trained end to end with the network",
+            "",
+            "Half-life, beta and nu of a learnable EDR start at the paper's values (half-life 3.8 "
+            "frames, beta 1, nu 0.05) and train with the backbone; their final values are the "
+            "mean +- std over seeds. Diverged: runs whose training loss stopped being a number "
+            "(recorded with the step, `train/diverged_step`; their accuracy is not averaged). "
+            "FDR: the same backbone and budget on the frames. Per-epoch values and the EDR "
+            "layer's gradient norm: `figures/learnable_edr.png`.",
+            "",
+            pd.DataFrame(rows).to_markdown(index=False),
+            "",
+        ]
     )

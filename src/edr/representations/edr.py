@@ -197,7 +197,11 @@ class EDR(Representation):
         with torch.no_grad():
             named = {"tau": self.half_lives, "beta": self.betas, **dict(zip(("nu_on", "nu_off"),
                      self.nus(), strict=True))}  # fmt: skip
-        return {f"edr/{name}_{i}": float(v) for name, t in named.items() for i, v in enumerate(t)}
+        return {
+            f"edr/{name}_{i}": float(v)
+            for name, t in named.items()
+            for i, v in enumerate(t.detach())
+        }
 
     def nus(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(K',) nu_on and nu_off."""

@@ -10,6 +10,7 @@ it); ``train_recognition``, the tasks' entry, returns the metrics only.
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -40,6 +41,8 @@ from edr.validate import (
     PositiveFloat,
     PositiveInt,
 )
+
+log = logging.getLogger(__name__)
 
 MODEL = "model.pt"  # the trained model's state_dict and the backbone's size arguments
 HISTORY = "history.json"  # one row per epoch: train loss and accuracy, test accuracy, lr
@@ -174,6 +177,8 @@ def fit_recognition(
     dead_units = DeadUnits(model)  # whether the network stays alive, per epoch
 
     # ---- training ----------------------------------------------------------------------------
+    diverged: dict[str, float] = {}  # where the loss stopped being a number, if it did
+    learnable = isinstance(online, EDR) and online.learnable
     for epoch in range(start_epoch, epochs):
         model.train()
         dead_units.reset()
@@ -181,21 +186,33 @@ def fit_recognition(
         loader = DataLoader(
             train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers
         )
-        total, correct, loss_sum = 0, 0, 0.0
+        total, correct, loss_sum, edr_grad_norms = 0, 0, 0.0, []
         bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", unit="batch")
-        for clips, labels in bar:
+        for step, (clips, labels) in enumerate(bar, start=1):
             clips, labels = clips.to(dev), labels.to(dev)
             logits = model(clips)
             loss = loss_fn(logits, labels)
+            if not torch.isfinite(loss):  # diverged: a result to record, not a crash
+                diverged = {
+                    "train/diverged_epoch": epoch + 1,
+                    "train/diverged_step": epoch * len(loader) + step,
+                }
+                break
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            if learnable:  # the EDR layer's gradient, before the step: its stability, logged
+                edr_grad_norms.append(_grad_norm(online))
             opt.step()
             total += len(labels)
             correct += int((logits.argmax(-1) == labels).sum())
             loss_sum += loss.item() * len(labels)
             bar.set_postfix(loss=f"{loss_sum / total:.3f}", acc=f"{correct / total:.2f}")
-        if not np.isfinite(loss_sum):
-            raise FloatingPointError(f"training loss is {loss_sum} at epoch {epoch + 1}")
+        if diverged:
+            log.warning(
+                "the training loss is not a number at epoch %d, step %d: training stops here "
+                "and the run is recorded as diverged", epoch + 1, diverged["train/diverged_step"]
+            )  # fmt: skip
+            break
         row = {
             "epoch": epoch + 1,
             "train/loss": loss_sum / total,
@@ -203,6 +220,8 @@ def fit_recognition(
             **dead_units.fractions(),  # units that fired on no training clip of the epoch
             **_learned(online),  # a learnable EDR's half-lives, betas and nus, epoch by epoch
         }
+        if edr_grad_norms:
+            row["edr/grad_norm"] = float(np.mean(edr_grad_norms))  # mean over the epoch's steps
         row["train/lr"] = opt.param_groups[0]["lr"]
         scheduler.step()
         if (epoch + 1) % eval_every == 0 or epoch + 1 == epochs:
@@ -254,8 +273,17 @@ def fit_recognition(
         "model/parameters": sum(p.numel() for p in model.parameters()),
         **{f"sparsity/{name}": value for name, value in sparsity.items()},
         **_learned(online),
+        **diverged,
     }
+    if diverged:  # what a network of NaNs predicts is no accuracy
+        metrics["eval/accuracy"] = float("nan")
     return Fitted(model, metrics)
+
+
+def _grad_norm(module: nn.Module) -> float:
+    """The L2 norm of the gradient of every parameter of ``module``, together."""
+    grads = [p.grad.detach().flatten() for p in module.parameters() if p.grad is not None]
+    return float(torch.linalg.vector_norm(torch.cat(grads))) if grads else 0.0
 
 
 def _learned(representation: Representation | None) -> dict[str, float]:
