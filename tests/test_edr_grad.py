@@ -144,3 +144,42 @@ def test_the_bounded_parameterization_starts_where_the_log_one_does_and_stays_in
     assert all(torch.isfinite(p.grad).all() for p in bounded.parameters())
     with pytest.raises(ValueError, match="bounded"):
         EDR(half_lives=(100.0,), learnable=True, parameterization="bounded")
+
+
+def _best_threshold_accuracy(feature: torch.Tensor, labels: torch.Tensor) -> float:
+    """The accuracy of the best rule ``feature > c`` over every cut ``c``."""
+    order = labels[feature.argsort()]
+    # cut after k samples: the first k say 0, the rest 1
+    right = torch.cat([torch.zeros(1), (1 - order).cumsum(0)]) + torch.cat(
+        [order.flip(0).cumsum(0).flip(0), torch.zeros(1)]
+    )
+    return float(right.max() / len(labels))
+
+
+def test_learning_finds_the_one_timescale_that_separates_two_classes() -> None:
+    """The known answer with a classifier: clips (random walks of intensity) are labelled by
+    how much a fixed EDR with half-life 3.8 fires ON; a learnable EDR starting at half-life 1,
+    whose ON activity a linear classifier reads, learns a half-life near 3.8 and separates the
+    classes, which its starting half-life does not."""
+    torch.manual_seed(0)
+    clips = (120 + (torch.randn(192, 40, 1, 8, 8) * 8).cumsum(1)).clamp(5, 250)
+    on = EDR(half_lives=(3.8,))(clips)[:, :, 0].mean((1, 2, 3))  # (B,) ON activity
+    labels = (on > on.median()).float()
+    student = EDR(half_lives=(1.0,), learnable=True)
+    for fixed in (student.beta, student.nu_on, student.nu_off):
+        fixed.requires_grad_(False)
+    start = student(clips)[:, :, 0].mean((1, 2, 3)).detach()
+    weights = torch.zeros(2, requires_grad=True)  # the classifier: scale and bias
+    optim = torch.optim.Adam([{"params": [student.log_tau], "lr": 0.05},
+                              {"params": [weights], "lr": 0.1}])  # fmt: skip
+    for _ in range(150):
+        activity = student(clips)[:, :, 0].mean((1, 2, 3))
+        feature = (activity - activity.mean()) / (activity.std() + 1e-6)
+        logits = 5 * weights[0] * feature + weights[1]
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, labels)
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+    assert _best_threshold_accuracy(start, labels) < 0.9  # half-life 1 does not separate them
+    assert ((logits > 0).float() == labels).float().mean() > 0.97
+    assert abs(student.half_lives.item() - 3.8) < 0.3, student.half_lives.item()
