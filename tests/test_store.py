@@ -3,6 +3,7 @@ makes in its folder, atomic files, and caches keyed by content and safe to fill 
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 from functools import partial
@@ -255,3 +256,34 @@ def test_corrupt_checkpoint_csv_and_attempts_name_themselves_or_are_survived(tmp
     (cell / "attempts.jsonl").write_text('{"at": "x", "unix": 1, "outc')  # cut short by a crash
     log_attempt(cell, "ran", "f00")
     assert outcomes_since(tmp_path, 0)["ran"] == 1
+
+
+@pytest.mark.slow
+def test_a_disk_that_fills_mid_run_leaves_no_half_written_file(tmp_path) -> None:
+    """The kernel refuses every write past 64 KB (``RLIMIT_FSIZE``, as a full disk refuses
+    them): the run fails naming the OS's error, its checkpoint is not left half-written, and
+    the same command then runs it whole."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    exe = str(Path(sys.executable).parent / "edr-run")
+    args = [exe, *TINY_KTH, f"task.cache_dir={tmp_path / 'cache'}", "task.logger="]
+    subprocess.run([*args, f"out_dir={tmp_path / 'warm'}"], check=True, capture_output=True)
+
+    def full_disk() -> None:  # in the child: writes past 64 KB fail with EFBIG
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+
+    run_dir = tmp_path / "run"
+    failed = subprocess.run([*args, f"out_dir={run_dir}"], preexec_fn=full_disk,
+                            capture_output=True, text=True)  # fmt: skip
+    assert failed.returncode != 0 and "the write stopped part-way" in failed.stderr
+    record = json.loads((run_dir / "run.json").read_text())
+    assert record["status"] == "failed" and "checkpoint.pt" in record["error"]
+    assert not [p.name for p in run_dir.rglob("*") if "partial" in p.name]  # nothing half-written
+    assert not (run_dir / "checkpoint.pt").exists()
+    again = subprocess.run([*args, f"out_dir={run_dir}"], capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert json.loads((run_dir / "run.json").read_text())["status"] == "finished"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import random
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +23,22 @@ log = logging.getLogger(__name__)
 
 
 def save_atomic(payload: object, path: Path) -> None:
-    """``torch.save`` so that ``path`` holds the old file or the whole new one, never half."""
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    """``torch.save`` so that ``path`` holds the old file or the whole new one, never half.
+
+    A write the OS refuses part-way (a full disk, a quota, a file-size limit) is an ``OSError``
+    that names the file and the free space: torch itself says only "unexpected pos"."""
+    try:
+        with atomic_path(path) as tmp:
+            torch.save(payload, tmp)
+    except (OSError, RuntimeError) as err:
+        if isinstance(err, RuntimeError) and "inline_container" not in str(err):
+            raise  # not a failed write
+        free = shutil.disk_usage(path.parent).free / 2**30
+        raise OSError(
+            f"could not write {path}: the write stopped part-way ({str(err).strip()[:120]}); "
+            f"{free:.1f} GiB free on its disk. A full disk, a quota or a file-size limit? "
+            f"The file there, if any, is the previous one, whole"
+        ) from err
 
 
 def _rng_state() -> dict[str, Any]:
