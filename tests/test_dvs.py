@@ -68,6 +68,35 @@ def test_dvs_camera_on_off_order_matches_edr() -> None:
     assert torch.equal(moving, moving.round())
 
 
+@pytest.mark.parametrize("fps", [25.0, 30.0])  # 40,000 us a frame, and 33,333.3 us
+def test_dvs_camera_bins_tile_by_tile_what_the_event_list_holds(monkeypatch, fps: float) -> None:
+    """DVSCamera bins each frame interval's events, a few pixels at a time, as they come: the
+    counts of the whole clip's event list, each event in the frame interval its integer time
+    falls in (as ``events_to_frames`` bins them; at 30 fps, whose frame is not a whole number
+    of microseconds, DVSCamera used to fail on one frame fewer from it)."""
+    from edr.representations import dvs
+
+    settings = {"mismatch": 0.1, "refractory_us": 300.0, "shot_noise_hz": 40.0, "fps": fps,
+                "threshold_on": 0.1, "threshold_off": 0.15}  # fmt: skip
+    clip = translating_clip(frames=7, height=12, width=16)  # (1, 7, 3, 12, 16) uint8
+    gray = dvs.to_gray(clip, channel_dim=2)[0, :, 0].numpy()
+    simulator = DVSSimulator(**settings)
+    events = simulator.simulate(gray)
+    expected = np.zeros((6, 2, 12, 16), np.float32)  # [ON, OFF] per frame interval
+    interval = np.minimum(events["t"] // simulator.frame_us, 5).astype(np.int64)
+    np.add.at(expected, (interval, 1 - events["p"].astype(np.int64), events["y"], events["x"]), 1)
+    monkeypatch.setattr(dvs, "TILE_PIXELS", 7)  # tiles that cut rows
+    tiled = DVSCamera(**settings)(clip)[0].numpy()  # (6, 2, 12, 16)
+    assert expected.sum() == len(events) > 100
+    np.testing.assert_array_equal(tiled, expected)
+    if fps == 25.0:
+        binned = dvs.events_to_frames(
+            events, 12, 16, time_window=simulator.frame_us, start_time=0.0,
+            end_time=6 * simulator.frame_us, dtype=np.float32,
+        )  # fmt: skip
+        np.testing.assert_array_equal(tiled, binned[:, ::-1])
+
+
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
 def test_the_simulator_refuses_frames_that_are_not_intensities(bad) -> None:
 

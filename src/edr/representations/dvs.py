@@ -14,6 +14,8 @@ Events are a structured array with fields ``t`` (microseconds, int64), ``x``, ``
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import torch
 from numba import njit
@@ -27,6 +29,7 @@ from edr.representations.base import (
 )
 from edr.validate import NonNegativeFloat, PositiveFloat, check_arguments
 
+TILE_PIXELS = 1 << 18  # DVSCamera simulates this many pixels at a time (bounded memory)
 EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
 
@@ -100,6 +103,22 @@ class DVSSimulator:
 
     def simulate(self, frames: np.ndarray) -> np.ndarray:
         """(T, H, W) gray intensities (0..255) -> events (EVENT_DTYPE), sorted by ``t``."""
+        frames = self._checked(frames)
+        chunks = [chunk[1:] for chunk in self.intervals(frames)]
+        if not chunks:
+            return np.zeros(0, EVENT_DTYPE)
+        times, pixels, pol = (np.concatenate(parts) for parts in zip(*chunks, strict=True))
+        order = np.argsort(times, kind="stable")
+        w = frames.shape[2]
+        events = np.empty(len(order), EVENT_DTYPE)
+        events["t"] = np.floor(times[order]).astype(np.int64)
+        events["x"] = pixels[order] % w
+        events["y"] = pixels[order] // w
+        events["p"] = pol[order]
+        return events
+
+    @staticmethod
+    def _checked(frames: np.ndarray) -> np.ndarray:
         frames = np.asarray(frames)
         if frames.ndim != 3 or frames.shape[0] < 1:
             raise ValueError(f"frames must be (T, H, W) with T >= 1, got {frames.shape}")
@@ -110,42 +129,50 @@ class DVSSimulator:
                 "frames must be finite intensities >= 0 (0..255); got "
                 + ("NaN or inf" if not np.isfinite(frames).all() else f"min {frames.min():.4g}")
             )
+        return frames
+
+    def intervals(
+        self, frames: np.ndarray, tile: int | None = None
+    ) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+        """The events of :meth:`simulate`, unsorted, in pieces: ``(k, t, pixel, polarity)``
+        per frame interval ``k``, ``tile`` pixels at a time (every pixel at once when None),
+        then the interval's shot noise. t (N,) float64 microseconds, pixel (N,) flat index
+        y * W + x, polarity (N,) 1 ON / 0 OFF. Memory: a frame's log intensities and one
+        tile's events, whatever the clip's length or the events' count."""
+        frames = self._checked(frames)
         t_count, h, w = frames.shape
+        pixels = h * w
+        tile = tile or max(pixels, 1)
         rng = np.random.default_rng(self.seed)
-        logs = np.log(frames.reshape(t_count, h * w).astype(np.float64) + self.eps)  # (T, P)
         th_on, th_off = (
-            np.maximum(th * (1.0 + self.mismatch * rng.standard_normal(h * w)), 0.01 * th)
+            np.maximum(th * (1.0 + self.mismatch * rng.standard_normal(pixels)), 0.01 * th)
             for th in (self.threshold_on, self.threshold_off)
         )
-        ref = logs[0].copy()
-        last_t = np.full(h * w, -np.inf)
-        chunks = []
+        log_next = self._log(frames[0])  # (P,)
+        ref = log_next.copy()
+        last_t = np.full(pixels, -np.inf)
         for k in range(t_count - 1):
+            log_prev, log_next = log_next, self._log(frames[k + 1])
             t_prev = k * self.frame_us
-            times, pixels, pol = _crossings(
-                logs[k], logs[k + 1], ref, th_on, th_off, last_t, t_prev, self.frame_us,
-                self.refractory_us,
-            )  # fmt: skip
-            chunks.append((times, pixels, pol))
+            for start in range(0, pixels, tile):
+                part = slice(start, start + tile)  # views: ref and last_t move on in place
+                times, where, pol = _crossings(
+                    log_prev[part], log_next[part], ref[part], th_on[part], th_off[part],
+                    last_t[part], t_prev, self.frame_us, self.refractory_us,
+                )  # fmt: skip
+                yield k, times, where + start, pol
             if self.shot_noise_hz > 0:
-                n_noise = rng.poisson(self.shot_noise_hz * self.frame_us * 1e-6 * h * w)
-                chunks.append(
-                    (
-                        t_prev + self.frame_us * rng.random(n_noise),
-                        rng.integers(0, h * w, n_noise),
-                        rng.integers(0, 2, n_noise).astype(np.int8),
-                    )
+                n_noise = rng.poisson(self.shot_noise_hz * self.frame_us * 1e-6 * pixels)
+                yield (
+                    k,
+                    t_prev + self.frame_us * rng.random(n_noise),
+                    rng.integers(0, pixels, n_noise),
+                    rng.integers(0, 2, n_noise).astype(np.int8),
                 )
-        if not chunks:
-            return np.zeros(0, EVENT_DTYPE)
-        times, pixels, pol = (np.concatenate(parts) for parts in zip(*chunks, strict=True))
-        order = np.argsort(times, kind="stable")
-        events = np.empty(len(order), EVENT_DTYPE)
-        events["t"] = np.floor(times[order]).astype(np.int64)
-        events["x"] = pixels[order] % w
-        events["y"] = pixels[order] // w
-        events["p"] = pol[order]
-        return events
+
+    def _log(self, frame: np.ndarray) -> np.ndarray:
+        """(H, W) intensities -> (P,) float64 log intensities."""
+        return np.log(frame.reshape(-1).astype(np.float64) + self.eps)
 
 
 def check_events(events: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -318,12 +345,11 @@ class DVSCamera(Representation):
         check_clip(frames, min_frames=2, name="frames")
         gray = to_gray(frames.detach().cpu(), channel_dim=2)[:, :, 0].numpy()  # (B, T, H, W)
         b, t, h, w = gray.shape
-        out = np.empty((b, t - 1, 2, h, w), np.float32)
-        for i in range(b):
-            events = self.simulator.simulate(gray[i])
-            binned = events_to_frames(
-                events, h, w, time_window=self.simulator.frame_us, start_time=0.0,
-                end_time=(t - 1) * self.simulator.frame_us, dtype=np.float32,
-            )  # fmt: skip
-            out[i] = binned[:, ::-1]  # tonic's [OFF, ON] -> EDR's [ON, OFF]
-        return torch.from_numpy(out).to(frames.device)
+        out = np.zeros((b, t - 1, 2, h * w), np.float32)
+        frame_us = self.simulator.frame_us
+        for i in range(b):  # binned as they come: never the clip's whole event list at once
+            for _, times, pixels, pol in self.simulator.intervals(gray[i], TILE_PIXELS):
+                # the bin events_to_frames gives an event at floor(t) (time_window = frame_us)
+                bins = np.minimum(np.floor(times) // frame_us, t - 2).astype(np.int64)
+                np.add.at(out[i], (bins, 1 - pol.astype(np.int64), pixels), 1.0)  # [ON, OFF]
+        return torch.from_numpy(out.reshape(b, t - 1, 2, h, w)).to(frames.device)
