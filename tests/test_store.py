@@ -146,6 +146,7 @@ def test_a_replaced_video_is_decoded_again(tmp_path) -> None:
     assert not np.array_equal(before, after) and after.mean() > 190
 
 
+@pytest.mark.slow
 def test_one_writer_per_run_folder(cli, tmp_path) -> None:
     """A second run on a folder another live process holds exits at once, naming the holder;
     a lock left by a process that is gone is taken over."""
