@@ -13,7 +13,8 @@ from edr.validate import PositiveFloat, check_arguments
 
 
 class FDR(Representation):
-    """Frame-driven representation: the frames themselves, RGB or gray, times ``scale``.
+    """Frame-driven representation: the frames themselves, RGB or gray, times ``scale``, less
+    ``offset`` (0.5 centres 0..1 frames on zero, as a ConvNet's mean subtraction does).
 
     (B, T, C, H, W) -> (B, T, C', H, W), C' = 1 if ``color="gray"`` else C.
     """
@@ -21,24 +22,27 @@ class FDR(Representation):
     features = Features("1 frame", "no", "no", "no", "no", "no")
 
     def __init__(
-        self, color: Literal["keep", "gray"] = "keep", scale: PositiveFloat = 1 / 255
+        self,
+        color: Literal["keep", "gray"] = "keep",
+        scale: PositiveFloat = 1 / 255,
+        offset: float = 0.0,
     ) -> None:
         super().__init__()
         check_arguments(self, locals())
-        self.color, self.scale = color, float(scale)
+        self.color, self.scale, self.offset = color, float(scale), float(offset)
 
     def out_channels(self, in_channels: int) -> int:
         return 1 if self.color == "gray" else in_channels
 
     def preview(self, out_t: torch.Tensor) -> np.ndarray:
-        image = out_t.detach().float().cpu().permute(1, 2, 0).numpy()
+        image = out_t.detach().float().cpu().permute(1, 2, 0).numpy() + self.offset
         image = image / max(float(image.max()), 1e-8)
         return np.repeat(image, 3, axis=2) if image.shape[2] == 1 else image
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         check_clip(frames, name="frames")
         x = to_gray(frames, channel_dim=2) if self.color == "gray" else to_float(frames)
-        return (x * self.scale).float()
+        return (x * self.scale - self.offset).float()
 
 
 class GrayDiff(Representation):
