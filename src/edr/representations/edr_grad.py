@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from edr.representations import kernels
+from edr.representations import buffers, kernels
 from edr.representations.base import GRAY_WEIGHTS
 
 CHUNK = 256  # pixels a job runs through time together (vectorised across them)
@@ -227,8 +227,9 @@ class FusedEDRFunction(torch.autograd.Function):
                 sum_k: bool, window: int = 0) -> torch.Tensor:  # fmt: skip
         b, t, c, p = intensity.shape
         k, k_out = alpha.shape[0], on_th.shape[0]
-        ema = intensity.new_empty((b, t, c, k, p))
-        out = intensity.new_empty((b, t, c, k_out, 2, p))
+        # on recycled memory, as inference's output: fresh tens of MB fault in page by page
+        ema = buffers.RECYCLED.empty((b, t, c, k, p), intensity.dtype)
+        out = buffers.RECYCLED.empty((b, t, c, k_out, 2, p), intensity.dtype)
         params = [v.detach().contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(forward_kernel, b * t * p * c, intensity.detach().numpy(), *params,
                        log_form, hard, sum_k, ema.numpy(), out.numpy())  # fmt: skip
@@ -243,14 +244,14 @@ class FusedEDRFunction(torch.autograd.Function):
         b, t, c, p = intensity.shape
         jobs = b * c * ((p + CHUNK - 1) // CHUNK)
         dtype = intensity.dtype
-        grad_in = torch.empty_like(intensity)
+        grad_in = buffers.RECYCLED.empty(tuple(intensity.shape), dtype)
         g_alpha, g_beta = (torch.zeros((jobs, alpha.shape[0]), dtype=dtype) for _ in range(2))
         g_on, g_off = (torch.zeros((jobs, on_th.shape[0]), dtype=dtype) for _ in range(2))
         params = [v.detach().to(dtype).contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(
             backward_kernel, b * t * p * c, intensity.detach().numpy(), ema.numpy(),
             events.detach().numpy(), *params, log_form, hard, sum_k, window,
-            grad_out.to(dtype).contiguous().numpy(), grad_in.numpy(),
+            grad_out.to(dtype).numpy(), grad_in.numpy(),  # as it comes: a sum's is one value
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
         sums = [g.sum(0).to(v.dtype) for g, v in zip((g_alpha, g_beta, g_on, g_off),
