@@ -151,6 +151,7 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
         carry = np.zeros((n_k, n), intensity.dtype)  # g_e(t+1) (1 - a): what e(t) gets
         g_i = np.empty(n, intensity.dtype)
         g_x = np.empty(n, intensity.dtype)  # d loss / d (beta_k ln(I / e_k)), this t and k
+        g_xe = np.empty(n, intensity.dtype)  # its part of d loss / d e_k: -g_x beta_k / e_k
         for t in range(n_t - 1, -1, -1):
             now = intensity[b, t, c, lo:hi]
             g_i[:] = zero
@@ -179,12 +180,12 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
             for k in range(n_k):
                 a, bk = alpha[k], beta[k]
                 cur = ema[b, t, c, k, lo:hi]
-                prev = ema[b, t - 1, c, k, lo:hi] if t > 0 else cur
                 d_alpha, d_beta, d_on, d_off = zero, zero, zero, zero
+                # Only where an event fired is g_x non-zero: the divisions are taken there alone.
                 if not sum_k:
                     on_ev, off_ev = events[b, t, c, k, 0, lo:hi], events[b, t, c, k, 1, lo:hi]
                     for j in range(n):
-                        g_x[j] = zero
+                        g_xe[j] = zero
                         if on_ev[j] != zero or off_ev[j] != zero:
                             r, log_ratio = _fired(on_ev[j], off_ev[j], on_th[k], off_th[k], hard,
                                                   log_form, now[j], cur[j], bk)  # fmt: skip
@@ -194,22 +195,28 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
                             g_r = (g_on_out if above else zero) - (g_off_out if below else zero)
                             d_on -= g_on_out if above else zero
                             d_off += g_off_out if below else zero
-                            g_x[j] = g_r if log_form else g_r * r
-                            d_beta += g_x[j] * log_ratio
+                            gx = g_r if log_form else g_r * r
+                            d_beta += gx * log_ratio
+                            g_i[j] += gx * bk / now[j]
+                            g_xe[j] = gx * bk / cur[j]
                 else:
                     for j in range(n):
+                        g_xe[j] = zero
                         if g_x[j] != zero:
                             d_beta += g_x[j] * np.log(now[j] / cur[j])
-                for j in range(n):
-                    e = cur[j]
-                    g_i[j] += g_x[j] * bk / now[j]
-                    total = carry[k, j] - g_x[j] * bk / e
-                    if t > 0:
+                            g_i[j] += g_x[j] * bk / now[j]
+                            g_xe[j] = g_x[j] * bk / cur[j]
+                if t > 0:  # e(t) = e(t-1) + a (I(t) - e(t-1)): multiplies and adds only
+                    prev = ema[b, t - 1, c, k, lo:hi]
+                    keep = zero if cut else 1 - a
+                    for j in range(n):
+                        total = carry[k, j] - g_xe[j]
                         d_alpha += total * (now[j] - prev[j])
                         g_i[j] += total * a
-                        carry[k, j] = zero if cut else total * (1 - a)
-                    else:  # e(0) = I(0)
-                        g_i[j] += total
+                        carry[k, j] = total * keep
+                else:  # e(0) = I(0)
+                    for j in range(n):
+                        g_i[j] += carry[k, j] - g_xe[j]
                 g_alpha[job, k] += d_alpha
                 g_beta[job, k] += d_beta
                 if not sum_k:
