@@ -195,3 +195,16 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
     assert atari_runs(runs)["scale"].tolist() == [
         "full settings, but 10M of the paper's 30M env steps", "full", "tiny",
     ]  # fmt: skip
+
+
+def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
+    from edr.report.atari import steps_to_score
+
+    rows = [
+        {"env_steps": 1000 * i, "train/score": s} for i, s in enumerate([None, -21, 5, 18.5, 19])
+    ]
+    (tmp_path / "history.json").write_text(json.dumps(rows))
+    record = str(tmp_path / "run.json")
+    assert steps_to_score(record, 18) == 3000  # the first row at or above it
+    assert steps_to_score(record, 20) is None  # never reached
+    assert steps_to_score(str(tmp_path / "missing" / "run.json"), 18) is None
