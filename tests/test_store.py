@@ -223,6 +223,7 @@ def test_a_truncated_record_names_itself_and_the_remedy(compose_config, tmp_path
         (("task.crop=500",), "task.crop=500: expected at most the frames' short side, 30"),
         (("task=dvs_transfer", "task.dvs_root=/nope"), "task.dvs_root='/nope': expected an existing folder"),
         (("task=atari", "task.env.game=Pongg"), "task.env.game='Pongg': expected an ALE game (Pong"),
+        (("task=atari", "representation.learnable=true"), "the Atari loop computes EDR inside the env"),
     ],
 )  # fmt: skip
 def test_a_bad_value_is_one_line_before_any_work(compose_config, overrides, message, tmp_path):

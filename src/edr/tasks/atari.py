@@ -230,6 +230,12 @@ def _check_env(env: EnvSettings) -> None:
             f"group, which holds {type(env.edr).__name__}: use representation=edr "
             "(representation.color=gray for the paper's input), or task.env.inputs=fdr"
         )
+    if env.inputs != "fdr" and env.edr.learnable:
+        raise ConfigError(
+            "representation.learnable=true: the Atari loop computes EDR inside the env, without "
+            "gradients, so its parameters would not learn; learnable EDR trains in the "
+            "recognition tasks (task=kth, task=ucf101)"
+        )
     if (env.env_id is None) != (env.preset != "none"):
         raise ConfigError(
             "a gymnasium env of your own takes task.env.env_id=<id> with task.env.preset=none "
