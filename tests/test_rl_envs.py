@@ -33,6 +33,7 @@ def test_env_specs_hold_with_edr(backend: str, num_envs: int) -> None:
         env.close()
 
 
+@pytest.mark.slow  # 14 s in a fresh clone (the gray frame kernel compiles)
 def test_observation_combinations() -> None:
     for fdr, edr, channels in (
         ("gray", None, 1),
