@@ -4,8 +4,6 @@ with stratified-bootstrap 95 % intervals (rliable)."""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,7 +11,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, unfinished
+from edr.report.runs import cells, finished, run_history, unfinished
 from edr.rl.settings import INPUT_NAMES
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
@@ -26,10 +24,13 @@ TARGET_SCORE = {"Pong": 18.0}  # Figure 5a: env steps each input took to reach a
 def steps_to_score(record: str, target: float) -> int | None:
     """The env steps after which a run's training score (the mean of its last 20 episodes,
     ``train/score`` in its history.json) first reached ``target``; None if it never did."""
-    history = Path(record).parent / "history.json"
-    rows = json.loads(history.read_text()) if history.is_file() else []
     return next(
-        (int(r["env_steps"]) for r in rows if (r.get("train/score") or -np.inf) >= target), None
+        (
+            int(r["env_steps"])
+            for r in run_history(record)
+            if (r.get("train/score") or -np.inf) >= target
+        ),
+        None,
     )
 
 

@@ -21,15 +21,10 @@ from edr.atomic import atomic_path, save_figure, write_text_atomic
 from edr.report.atari import atari_runs, normalised_scores
 from edr.report.recognition import learnable_runs, without_ablations
 from edr.report.render import provenance
-from edr.report.runs import CELL_KEYS, finished
+from edr.report.runs import CELL_KEYS, finished, run_history
 from edr.rl.settings import INPUT_NAMES
 
 Draw = Callable[[], "plt.Figure | None"]
-
-
-def _history(record: str) -> list[dict[str, Any]]:
-    file = Path(record).parent / "history.json"
-    return json.loads(file.read_text()) if file.is_file() else []
 
 
 def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFrame]]:
@@ -45,7 +40,7 @@ def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y:
     False if no run has a point to draw."""
     drawn = False
     for label, group in _cells(runs, labels):
-        series = [[(row[x], row[y]) for row in _history(r) if y in row] for r in group["record"]]
+        series = [[(row[x], row[y]) for row in run_history(r) if y in row] for r in group["record"]]
         series = [s for s in series if s]
         if not series:
             continue

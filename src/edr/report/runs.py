@@ -135,3 +135,9 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
     if frame.empty:
         return frame.reindex(columns=columns)
     return frame.sort_values(list(labels), key=lambda c: c.astype(str), kind="stable")
+
+
+def run_history(record: str) -> list[dict[str, Any]]:
+    """The rows of a run's ``history.json`` (beside its record); none if it has none."""
+    file = Path(record).parent / "history.json"
+    return json.loads(file.read_text()) if file.is_file() else []
