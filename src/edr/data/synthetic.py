@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -195,11 +196,6 @@ def write_synthetic_ucf101(
 
     def write(tmp: Path) -> None:
         rng = np.random.default_rng(seed)
-        lists = tmp / "ucfTrainTestlist"
-        lists.mkdir(parents=True)
-        (lists / "classInd.txt").write_text(
-            "".join(f"{i} {name}\n" for i, name in enumerate(SYNTHETIC_UCF_CLASSES, start=1))
-        )
         entries = []
         tint = np.array([1.0, 0.85, 0.7], np.float32)[:, None, None]
         for label, name in enumerate(SYNTHETIC_UCF_CLASSES, start=1):
@@ -207,14 +203,32 @@ def write_synthetic_ucf101(
                 for clip in range(1, clips + 1):
                     gray = action_video(_MOTION[name], rng, frames, height, width)
                     rgb = np.clip(gray[:, None].astype(np.float32) * tint, 0, 255).astype(np.uint8)
-                    rel = f"{name}/v_{name}_g{group:02d}_c{clip:02d}.avi"
+                    rel = ucf101_name(name, group, clip)
                     write_video(tmp / rel, rgb)
                     entries.append((rel, label, group))
-        for split in (1, 2, 3):
-            test_groups = range(7 * (split - 1) + 1, 7 * split + 1)
-            train = [f"{rel} {label}\n" for rel, label, g in entries if g not in test_groups]
-            test = [f"{rel}\n" for rel, _, g in entries if g in test_groups]
-            (lists / f"trainlist0{split}.txt").write_text("".join(train))
-            (lists / f"testlist0{split}.txt").write_text("".join(test))
+        write_ucf101_lists(tmp, SYNTHETIC_UCF_CLASSES, entries)
 
     return publish_dir(root, write)
+
+
+def ucf101_name(name: str, group: int, clip: int) -> str:
+    """A clip's path in UCF-101's layout: ``<Class>/v_<Class>_gXX_cYY.avi``."""
+    return f"{name}/v_{name}_g{group:02d}_c{clip:02d}.avi"
+
+
+def write_ucf101_lists(
+    root: Path, classes: Sequence[str], entries: Sequence[tuple[str, int, int]]
+) -> None:
+    """``root/ucfTrainTestlist/``: ``classInd.txt`` and the three official splits of the clips
+    ``entries`` ((path, 1-based label, group)); split k tests on groups 7(k-1)+1 .. 7k."""
+    lists = root / "ucfTrainTestlist"
+    lists.mkdir(parents=True, exist_ok=True)
+    (lists / "classInd.txt").write_text(
+        "".join(f"{i} {name}\n" for i, name in enumerate(classes, start=1))
+    )
+    for split in (1, 2, 3):
+        test_groups = range(7 * (split - 1) + 1, 7 * split + 1)
+        train = [f"{rel} {label}\n" for rel, label, g in entries if g not in test_groups]
+        test = [f"{rel}\n" for rel, _, g in entries if g in test_groups]
+        (lists / f"trainlist0{split}.txt").write_text("".join(train))
+        (lists / f"testlist0{split}.txt").write_text("".join(test))

@@ -132,7 +132,7 @@ def learnable_edr_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     def draw() -> plt.Figure | None:
         fig, axes = plt.subplots(1, len(LEARNABLE_PANELS), figsize=(16, 3.5))
         drawn = [
-            _draw_curves(ax, done, ["choices.ablation", "scale"], "epoch", key)
+            _draw_curves(ax, done, ["data.source", "choices.ablation", "scale"], "epoch", key)
             for ax, key in zip(axes, LEARNABLE_PANELS, strict=True)
         ]
         if not any(drawn):

@@ -304,19 +304,25 @@ def ablation_edr(runs: pd.DataFrame) -> Table:
 
 
 def learnable_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """The runs of the learnable-EDR comparison: fixed and learnable EDR (``ablation=paper``,
-    ``learnable_*``), and FDR with the same backbone at the same scales, as its control."""
-    done = finished(runs, "kth", only_ablations)
-    edr = done[done["choices.ablation"].isin(list(LEARNABLE))] if not done.empty else done
-    if edr.empty or not edr["choices.ablation"].str.startswith("learnable").any():
-        return edr.iloc[:0]
-    plain = finished(runs, "kth", without_ablations)
-    fdr = plain[
-        (plain["choices.representation"] == "fdr")
-        & plain["scale"].isin(set(edr["scale"]))
-        & plain["choices.backbone"].isin(set(edr["choices.backbone"]))
-    ]
-    return pd.concat([fdr.assign(**{"choices.ablation": "fdr"}), edr])
+    """The runs of the learnable-EDR comparison, on KTH and on UCF-101's layout (the speed
+    classes built from real videos): fixed and learnable EDR (``ablation=paper``,
+    ``learnable_*``), and FDR with the same backbone on the same data at the same scale, as
+    its control."""
+    parts = []
+    for task in ("kth", "ucf101"):
+        done = finished(runs, task, only_ablations)
+        edr = done[done["choices.ablation"].isin(list(LEARNABLE))] if not done.empty else done
+        if edr.empty or not edr["choices.ablation"].str.startswith("learnable").any():
+            continue
+        plain = finished(runs, task, without_ablations)
+        fdr = plain[
+            (plain["choices.representation"] == "fdr")
+            & plain["data.fingerprint"].isin(set(edr["data.fingerprint"]))
+            & plain["scale"].isin(set(edr["scale"]))
+            & plain["choices.backbone"].isin(set(edr["choices.backbone"]))
+        ]
+        parts += [fdr.assign(**{"choices.ablation": "fdr"}), edr]
+    return pd.concat(parts) if parts else runs.iloc[:0]
 
 
 def _learned_value(grouped: pd.Series, key: str, configured: Any) -> str:
@@ -339,7 +345,8 @@ def _learnable_block(runs: pd.DataFrame) -> str:
             runs[key] = float("nan") if key.startswith("metrics") else None
     grouped = cells(runs, metrics, ["choices.ablation", *keys])
     order = ["fdr", *LEARNABLE]
-    grouped = grouped.sort_values("choices.ablation", key=lambda c: c.map(order.index))
+    grouped = grouped.assign(order=grouped["choices.ablation"].map(order.index))
+    grouped = grouped.sort_values(["data.source", "order"], kind="stable")  # one block per data
     rows = []
     for _, g in grouped.iterrows():
         ablation = g["choices.ablation"]

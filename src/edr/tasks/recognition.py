@@ -261,7 +261,8 @@ def fit_recognition(
     save_learning_curve(history, out_dir / "learning_curve.png")
     save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
     metrics: dict[str, Any] = {
-        "data/source": "real" if data_root else "generated",
+        # a writer built from real videos says so (edr.data.from_videos); the rest generate
+        "data/source": "real" if data_root else getattr(synthetic.func, "data_source", "generated"),
         "data/synthetic": data_root is None,
         "data/root": str(root),
         "data/fingerprint": videos_fingerprint(root, [train_videos, test_videos]),
