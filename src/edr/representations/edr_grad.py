@@ -2,8 +2,9 @@
 
 :class:`FusedEDRFunction` is a ``torch.autograd.Function`` over intensities (already offset by
 ``eps`` and, for ``color="gray"``, converted to luma by torch, which differentiates that part).
-Its forward runs every pixel's EMAs and events in one pass and keeps the EMAs (B, T, C, K, P);
-its backward is one reverse-time scan per pixel that returns the gradients of the intensities
+Its forward runs every pixel's EMAs and events in one pass and keeps the events alone; its
+backward recomputes a chunk's EMAs (cheap, and they stay in cache), then runs one reverse-time
+scan per pixel that returns the gradients of the intensities
 (so EDR can sit after a learned layer) and of alpha, beta and the two thresholds, from which
 autograd reaches ``log_tau`` and the ``nu``s.
 
@@ -74,8 +75,9 @@ def _job(job, channels, n_chunks, pixels):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k, ema, out):
-    """intensity (B, T, C, P) -> ema (B, T, C, K, P) and events out (B, T, C, K', 2, P)."""
+def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k, out):
+    """intensity (B, T, C, P) -> events out (B, T, C, K', 2, P). The EMAs live in a chunk's
+    state (K, CHUNK) only, as in inference: the backward recomputes them (:func:`ema_chunk`)."""
     n_b, n_t, n_c, n_p = intensity.shape
     n_k = alpha.shape[0]
     n_chunks = (n_p + CHUNK - 1) // CHUNK
@@ -83,12 +85,14 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
         zero = intensity[b, 0, c, lo] * 0
         acc = np.empty(hi - lo, intensity.dtype)
+        state = np.empty((n_k, hi - lo), intensity.dtype)  # e_k(t - 1); e(-1) = I(0)
+        for k in range(n_k):
+            state[k] = intensity[b, 0, c, lo:hi]
         for t in range(n_t):
             now = intensity[b, t, c, lo:hi]
             acc[:] = zero
             for k in range(n_k):
-                prev = intensity[b, 0, c, lo:hi] if t == 0 else ema[b, t - 1, c, k, lo:hi]
-                cur = ema[b, t, c, k, lo:hi]
+                cur = state[k]
                 a, bk = alpha[k], beta[k]
                 on, off = (
                     out[b, t, c, k % out.shape[3], 0, lo:hi],
@@ -96,7 +100,7 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
                 )
                 plain = not (sum_k or log_form) and bk == 1  # r = I / e: no log, no exp
                 for j in range(hi - lo):
-                    e = prev[j] + a * (now[j] - prev[j])
+                    e = cur[j] + a * (now[j] - cur[j])
                     cur[j] = e
                     if plain:
                         r = now[j] / e
@@ -117,6 +121,22 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
 
 
 @njit(inline="always")
+def ema_chunk(intensity, alpha, b, c, lo, hi):
+    """The EMAs of one chunk's pixels through the clip, (T, K, n): recomputed by the backward
+    (T x CHUNK values a timescale stay in cache) instead of stored by the forward."""
+    n_t, n_k = intensity.shape[1], alpha.shape[0]
+    ema = np.empty((n_t, n_k, hi - lo), intensity.dtype)
+    for t in range(n_t):
+        now = intensity[b, t, c, lo:hi]
+        for k in range(n_k):
+            prev = intensity[b, 0, c, lo:hi] if t == 0 else ema[t - 1, k]
+            cur, a = ema[t, k], alpha[k]
+            for j in range(hi - lo):
+                cur[j] = prev[j] + a * (now[j] - prev[j])
+    return ema
+
+
+@njit(inline="always")
 def one_if(condition, zero):
     return zero + 1 if condition else zero
 
@@ -133,7 +153,7 @@ def _fired(on, off, on_th, off_th, hard, log_form, i, e, bk):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form, hard, sum_k,
+def backward_kernel(intensity, events, alpha, beta, on_th, off_th, log_form, hard, sum_k,
                     window, grad_out, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
     """One reverse-time scan per pixel: grad_in (B, T, C, P), and per job the partial sums of
     the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off (jobs, K'). Only where an
@@ -148,6 +168,7 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
         n = hi - lo
         zero = intensity[b, 0, c, lo] * 0
+        ema = ema_chunk(intensity, alpha, b, c, lo, hi)  # (T, K, n)
         carry = np.zeros((n_k, n), intensity.dtype)  # g_e(t+1) (1 - a): what e(t) gets
         g_i = np.empty(n, intensity.dtype)
         g_x = np.empty(n, intensity.dtype)  # d loss / d (beta_k ln(I / e_k)), this t and k
@@ -164,7 +185,7 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
                     if on_ev[j] != zero or off_ev[j] != zero:
                         x = zero
                         for k in range(n_k):
-                            x += beta[k] * np.log(now[j] / ema[b, t, c, k, lo + j])
+                            x += beta[k] * np.log(now[j] / ema[t, k, j])
                         r = x if log_form else np.exp(x)
                         g_on_out, g_off_out = (
                             grad_out[b, t, c, 0, 0, lo + j],
@@ -179,7 +200,7 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
                 g_off[job, 0] += d_off
             for k in range(n_k):
                 a, bk = alpha[k], beta[k]
-                cur = ema[b, t, c, k, lo:hi]
+                cur = ema[t, k]
                 d_alpha, d_beta, d_on, d_off = zero, zero, zero, zero
                 # Only where an event fired is g_x non-zero: the divisions are taken there alone.
                 if not sum_k:
@@ -207,7 +228,7 @@ def backward_kernel(intensity, ema, events, alpha, beta, on_th, off_th, log_form
                             g_i[j] += g_x[j] * bk / now[j]
                             g_xe[j] = g_x[j] * bk / cur[j]
                 if t > 0:  # e(t) = e(t-1) + a (I(t) - e(t-1)): multiplies and adds only
-                    prev = ema[b, t - 1, c, k, lo:hi]
+                    prev = ema[t - 1, k]
                     keep = zero if cut else 1 - a
                     for j in range(n):
                         total = carry[k, j] - g_xe[j]
@@ -233,20 +254,19 @@ class FusedEDRFunction(torch.autograd.Function):
     def forward(ctx: Any, intensity, alpha, beta, on_th, off_th, log_form: bool, hard: bool,
                 sum_k: bool, window: int = 0) -> torch.Tensor:  # fmt: skip
         b, t, c, p = intensity.shape
-        k, k_out = alpha.shape[0], on_th.shape[0]
+        k_out = on_th.shape[0]
         # on recycled memory, as inference's output: fresh tens of MB fault in page by page
-        ema = buffers.RECYCLED.empty((b, t, c, k, p), intensity.dtype)
         out = buffers.RECYCLED.empty((b, t, c, k_out, 2, p), intensity.dtype)
         params = [v.detach().contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(forward_kernel, b * t * p * c, intensity.detach().numpy(), *params,
-                       log_form, hard, sum_k, ema.numpy(), out.numpy())  # fmt: skip
-        ctx.save_for_backward(intensity, ema, out, alpha, beta, on_th, off_th)
+                       log_form, hard, sum_k, out.numpy())  # fmt: skip
+        ctx.save_for_backward(intensity, out, alpha, beta, on_th, off_th)
         ctx.flags = (log_form, hard, sum_k, window)
         return out
 
     @staticmethod
     def backward(ctx: Any, grad_out: torch.Tensor):
-        intensity, ema, events, alpha, beta, on_th, off_th = ctx.saved_tensors
+        intensity, events, alpha, beta, on_th, off_th = ctx.saved_tensors
         log_form, hard, sum_k, window = ctx.flags
         b, t, c, p = intensity.shape
         jobs = b * c * ((p + CHUNK - 1) // CHUNK)
@@ -256,8 +276,7 @@ class FusedEDRFunction(torch.autograd.Function):
         g_on, g_off = (torch.zeros((jobs, on_th.shape[0]), dtype=dtype) for _ in range(2))
         params = [v.detach().to(dtype).contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(
-            backward_kernel, b * t * p * c, intensity.detach().numpy(), ema.numpy(),
-            events.detach().numpy(), *params, log_form, hard, sum_k, window,
+            backward_kernel, b * t * p * c, intensity.detach().numpy(), events.detach().numpy(), *params, log_form, hard, sum_k, window,
             grad_out.to(dtype).numpy(), grad_in.numpy(),  # as it comes: a sum's is one value
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
