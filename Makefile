@@ -40,6 +40,7 @@ paper-tiny: setup
 LEARNING   := table1_pong learnable_edr kth_demo dvs_transfer_demo learnable_edr_real event_camera_real
 PAPER_RUNS := $(addprefix results/learning/,$(LEARNING)) results/sweeps/tiny/table2 results/sweeps/tiny/demo
 paper: setup
+	$(BIN)/python -m edr.sweeps results/sweeps/tiny  # skips the cells it ran before
 	$(BIN)/edr-tables $(addprefix --runs ,$(PAPER_RUNS))
 
 test: setup
