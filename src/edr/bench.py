@@ -73,12 +73,21 @@ def stream(edr: EDR, frames: torch.Tensor, inplace: bool = False) -> None:
         _, state = edr.step(frames[:, t], state, inplace=inplace)
 
 
-def train_step(edr: EDR, clip: torch.Tensor) -> None:
-    """A learnable EDR's forward and backward through the clip (the gradient of the events'
-    sum reaches its half-life, beta and thresholds), as a training step would run it."""
+def train_step(edr: EDR, clip: torch.Tensor, grad: torch.Tensor) -> None:
+    """A learnable EDR's forward and backward through the clip, as a training step runs it:
+    the events' gradient ``grad`` (dense, the shape of the events) comes from the network
+    after it, and reaches the half-life, beta and thresholds. (A sum's gradient would be one
+    broadcast value, which no network hands back.)"""
     edr.zero_grad(set_to_none=True)
     with torch.enable_grad():  # the bench times the other rows without autograd
-        edr(clip).sum().backward()
+        edr(clip).backward(grad)
+
+
+def upstream_gradient(edr: EDR, clip: torch.Tensor) -> torch.Tensor:
+    """A dense stand-in for the gradient a network sends back to ``edr``'s events of ``clip``."""
+    with torch.no_grad():
+        shape = edr(clip).shape
+    return torch.randn(shape, generator=torch.Generator().manual_seed(0))
 
 
 @dataclass
@@ -148,6 +157,7 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
         return Job(name, implementation, lambda: rep(x), x.shape[1], size)
 
     gray = EDR(color="gray")
+    grad = upstream_gradient(gray, clip)  # the learnable rows' events have the same shape
     return [
         whole("EDR K=1 soft gray", "fused numba kernel", gray),
         Job(
@@ -171,7 +181,7 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
             Job(
                 "EDR K=1 soft gray, learnable",
                 f"{label}, forward+backward",
-                lambda rep=rep: train_step(rep, clip),
+                lambda rep=rep: train_step(rep, clip, grad),
                 t,
                 size,
             )

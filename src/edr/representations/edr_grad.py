@@ -2,11 +2,13 @@
 
 :class:`FusedEDRFunction` is a ``torch.autograd.Function`` over intensities (already offset by
 ``eps`` and, for ``color="gray"``, converted to luma by torch, which differentiates that part).
-Its forward runs every pixel's EMAs and events in one pass and keeps the events alone; its
-backward recomputes a chunk's EMAs (cheap, and they stay in cache), then runs one reverse-time
-scan per pixel that returns the gradients of the intensities
-(so EDR can sit after a learned layer) and of alpha, beta and the two thresholds, from which
-autograd reaches ``log_tau`` and the ``nu``s.
+Its forward runs every pixel's EMAs and events in one pass and keeps nothing but its inputs;
+its backward recomputes a chunk's EMAs and responses (cheap: they stay in cache, and the
+events need not be read back from memory), then runs one reverse-time scan per pixel that
+returns the gradients of the intensities, when they need one (so EDR can sit after a learned
+layer), and of alpha, beta and the two thresholds, from which autograd reaches ``log_tau`` and
+the ``nu``s. Both are memory-bound, with their logarithms and exponentials vectorised
+(:mod:`edr.representations.vector_math`).
 
 The recurrence, per pixel and timescale k (``e(-1) = I(0)``, so ``e(0) = I(0)``):
 ``e(t) = e(t-1) + a_k (I(t) - e(t-1))``; back in time the EMA's gradient ``g_e(t)`` collects
@@ -25,8 +27,10 @@ from numba import njit, prange
 
 from edr.representations import buffers, kernels
 from edr.representations.base import GRAY_WEIGHTS
+from edr.representations.kernels import ema_step
+from edr.representations.vector_math import exp_into, log_into
 
-CHUNK = 256  # pixels a job runs through time together (vectorised across them)
+CHUNK = 1024  # pixels a job runs through time together: 4 KiB rows stream from memory
 
 
 @njit(parallel=True, cache=True)
@@ -51,7 +55,7 @@ def intensities(frames: torch.Tensor, gray: bool, eps: float, dtype: torch.dtype
     ``dtype`` (luma when ``gray``), in one pass (torch's conversion of uint8 video took longer
     than the EDR kernels themselves)."""
     b, t, c, h, w = frames.shape
-    out = torch.empty((b, t, 1 if gray else c, h, w), dtype=dtype)
+    out = buffers.RECYCLED.empty((b, t, 1 if gray else c, h, w), dtype)  # no fresh pages
     x = frames.contiguous().view(b, t, c, h * w)
     kernels.launch(intensity_kernel, b * t * h * w, x.numpy(), gray, dtype_eps(eps, dtype),
                    out.view(b, t, -1, h * w).numpy())  # fmt: skip
@@ -71,7 +75,48 @@ def _job(job, channels, n_chunks, pixels):
 
 
 # The kernels loop over a chunk's contiguous pixels innermost, in the intensities' own dtype,
-# branch-free where they can: LLVM vectorises them (fastmath lets it reorder the sums).
+# branch-free (selects, loads first), so LLVM vectorises them; fastmath lets it reorder the sums.
+# The forward and the backward compute a response with the same helpers, in the same order, so
+# the backward finds the events where the forward fired them without reading them back.
+
+
+@njit(inline="always")
+def _ratios(now, prev, a, cur, ratio):
+    """One EMA step of a timescale, cur (n,) = e(t) from prev = e(t - 1) (may be cur), and
+    ratio (n,) = I(t) / e(t)."""
+    for j in range(now.shape[0]):
+        e = ema_step(prev[j], a, now[j])
+        cur[j] = e
+        ratio[j] = now[j] / e
+
+
+@njit(inline="always")
+def _response(ratio, x, plain, log_form, r, scratch):
+    """The response of a ratio (n,) and x (n,) = beta ln(ratio) (or a sum of those over the
+    timescales): ``ratio`` itself when ``plain`` (ratio form, beta 1: x is not needed), x in the
+    log form, exp(x) (into r) in the ratio form."""
+    if plain:
+        return ratio
+    if log_form:
+        return x
+    exp_into(x, r, scratch)
+    return r
+
+
+@njit(inline="always")
+def _threshold(r, on_th, off_th, hard, zero, on, off):
+    """ON and OFF events (n,) of a response r (n,): r - on_th above on_th, off_th - r below
+    off_th (soft), or 1 there (hard)."""
+    one = zero + 1
+    if hard:  # two loops: a select on ``hard`` inside one kept LLVM from vectorising it
+        for j in range(r.shape[0]):
+            on[j] = one if r[j] > on_th else zero
+            off[j] = one if r[j] < off_th else zero
+        return
+    for j in range(r.shape[0]):
+        rj = r[j]
+        on[j] = rj - on_th if rj > on_th else zero
+        off[j] = off_th - rj if rj < off_th else zero
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -84,7 +129,8 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
         zero = intensity[b, 0, c, lo] * 0
-        acc = np.empty(hi - lo, intensity.dtype)
+        work = np.empty((5, hi - lo), intensity.dtype)
+        ratio, x, acc, r, scratch = work[0], work[1], work[2], work[3], work[4]
         state = np.empty((n_k, hi - lo), intensity.dtype)  # e_k(t - 1); e(-1) = I(0)
         for k in range(n_k):
             state[k] = intensity[b, 0, c, lo:hi]
@@ -92,38 +138,30 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
             now = intensity[b, t, c, lo:hi]
             acc[:] = zero
             for k in range(n_k):
-                cur = state[k]
-                a, bk = alpha[k], beta[k]
-                on, off = (
-                    out[b, t, c, k % out.shape[3], 0, lo:hi],
-                    out[b, t, c, k % out.shape[3], 1, lo:hi],
-                )
-                plain = not (sum_k or log_form) and bk == 1  # r = I / e: no log, no exp
-                for j in range(hi - lo):
-                    e = cur[j] + a * (now[j] - cur[j])
-                    cur[j] = e
-                    if plain:
-                        r = now[j] / e
-                    else:
-                        x = bk * np.log(now[j] / e)
-                        if sum_k:
-                            acc[j] += x
-                            continue
-                        r = x if log_form else np.exp(x)
-                    on[j] = one_if(r > on_th[k], zero) if hard else max(r - on_th[k], zero)
-                    off[j] = one_if(r < off_th[k], zero) if hard else max(off_th[k] - r, zero)
+                _ratios(now, state[k], alpha[k], state[k], ratio)
+                plain = not (sum_k or log_form) and beta[k] == 1  # r = I / e: no log, no exp
+                if not plain:  # x = beta ln(I / e)
+                    log_into(ratio, x)
+                    for j in range(hi - lo):
+                        x[j] *= beta[k]
+                if sum_k:
+                    for j in range(hi - lo):
+                        acc[j] += x[j]
+                else:
+                    resp = _response(ratio, x, plain, log_form, r, scratch)
+                    _threshold(resp, on_th[k], off_th[k], hard, zero,
+                               out[b, t, c, k, 0, lo:hi], out[b, t, c, k, 1, lo:hi])  # fmt: skip
             if sum_k:
-                on, off = out[b, t, c, 0, 0, lo:hi], out[b, t, c, 0, 1, lo:hi]
-                for j in range(hi - lo):
-                    r = acc[j] if log_form else np.exp(acc[j])
-                    on[j] = one_if(r > on_th[0], zero) if hard else max(r - on_th[0], zero)
-                    off[j] = one_if(r < off_th[0], zero) if hard else max(off_th[0] - r, zero)
+                resp = _response(ratio, acc, False, log_form, r, scratch)
+                _threshold(resp, on_th[0], off_th[0], hard, zero,
+                           out[b, t, c, 0, 0, lo:hi], out[b, t, c, 0, 1, lo:hi])  # fmt: skip
 
 
 @njit(inline="always")
 def ema_chunk(intensity, alpha, b, c, lo, hi):
     """The EMAs of one chunk's pixels through the clip, (T, K, n): recomputed by the backward
-    (T x CHUNK values a timescale stay in cache) instead of stored by the forward."""
+    (they stay in cache) instead of stored by the forward. (Their ratios I / e are taken again
+    frame by frame: a second (T, K, n) array fell out of cache on long clips.)"""
     n_t, n_k = intensity.shape[1], alpha.shape[0]
     ema = np.empty((n_t, n_k, hi - lo), intensity.dtype)
     for t in range(n_t):
@@ -132,35 +170,19 @@ def ema_chunk(intensity, alpha, b, c, lo, hi):
             prev = intensity[b, 0, c, lo:hi] if t == 0 else ema[t - 1, k]
             cur, a = ema[t, k], alpha[k]
             for j in range(hi - lo):
-                cur[j] = prev[j] + a * (now[j] - prev[j])
+                cur[j] = ema_step(prev[j], a, now[j])
     return ema
 
 
-@njit(inline="always")
-def one_if(condition, zero):
-    return zero + 1 if condition else zero
-
-
-@njit(inline="always")
-def _fired(on, off, on_th, off_th, hard, log_form, i, e, bk):
-    """Where an event fired: the response r and its log ratio ln(I / e). A soft event tells r
-    itself; only a hard one makes r be computed again."""
-    log_ratio = np.log(i / e)
-    if hard:
-        x = bk * log_ratio
-        return (x if log_form else np.exp(x)), log_ratio
-    return (on + on_th if on > 0 else off_th - off), log_ratio
-
-
 @njit(parallel=True, cache=True, fastmath=True)
-def backward_kernel(intensity, events, alpha, beta, on_th, off_th, log_form, hard, sum_k,
-                    window, grad_out, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
-    """One reverse-time scan per pixel: grad_in (B, T, C, P), and per job the partial sums of
-    the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off (jobs, K'). Only where an
-    event fired (``events``: the forward's output) does a response send a gradient, so
-    logarithms are taken there alone. ``window`` > 0: the EMA's gradient does not cross from
-    frame t to t - 1 where t is a multiple of it (truncated backpropagation through time, as if
-    e(t - 1) were a constant)."""
+def backward_kernel(intensity, alpha, beta, on_th, off_th, log_form, sum_k, window, grad_out,
+                    want_input, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
+    """One reverse-time scan per pixel: grad_in (B, T, C, P) (when ``want_input``), and per job
+    the partial sums of the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off
+    (jobs, K'). A hard event takes the soft one's gradient as its surrogate, so the scan is the
+    same for both. ``window`` > 0: the EMA's gradient does not cross from frame t to t - 1 where
+    t is a multiple of it (truncated backpropagation through time, as if e(t - 1) were a
+    constant)."""
     n_b, n_t, n_c, n_p = intensity.shape
     n_k = alpha.shape[0]
     n_chunks = (n_p + CHUNK - 1) // CHUNK
@@ -169,81 +191,77 @@ def backward_kernel(intensity, events, alpha, beta, on_th, off_th, log_form, har
         n = hi - lo
         zero = intensity[b, 0, c, lo] * 0
         ema = ema_chunk(intensity, alpha, b, c, lo, hi)  # (T, K, n)
+        ratio = np.empty((n_k, n), intensity.dtype)  # I / e_k at this t
+        log_ratio = np.empty((n_k, n), intensity.dtype)  # ln(I / e_k)
         carry = np.zeros((n_k, n), intensity.dtype)  # g_e(t+1) (1 - a): what e(t) gets
-        g_i = np.empty(n, intensity.dtype)
-        g_x = np.empty(n, intensity.dtype)  # d loss / d (beta_k ln(I / e_k)), this t and k
-        g_xe = np.empty(n, intensity.dtype)  # its part of d loss / d e_k: -g_x beta_k / e_k
+        work = np.empty((6, n), intensity.dtype)
+        g_i, inv_now, g_x, x, r, scratch = work[0], work[1], work[2], work[3], work[4], work[5]
         for t in range(n_t - 1, -1, -1):
             now = intensity[b, t, c, lo:hi]
-            g_i[:] = zero
-            cut = window > 0 and t % window == 0
-            if sum_k:  # one response for every timescale: d loss / d (the summed log ratio)
-                on_ev, off_ev = events[b, t, c, 0, 0, lo:hi], events[b, t, c, 0, 1, lo:hi]
-                d_on, d_off = zero, zero
+            x[:] = zero
+            for j in range(n):
+                g_i[j] = zero
+                inv_now[j] = 1 / now[j]
+            for k in range(n_k):
                 for j in range(n):
-                    g_x[j] = zero
-                    if on_ev[j] != zero or off_ev[j] != zero:
-                        x = zero
-                        for k in range(n_k):
-                            x += beta[k] * np.log(now[j] / ema[t, k, j])
-                        r = x if log_form else np.exp(x)
-                        g_on_out, g_off_out = (
-                            grad_out[b, t, c, 0, 0, lo + j],
-                            grad_out[b, t, c, 0, 1, lo + j],
-                        )
-                        above, below = r > on_th[0], r < off_th[0]
-                        g_r = (g_on_out if above else zero) - (g_off_out if below else zero)
-                        d_on -= g_on_out if above else zero
-                        d_off += g_off_out if below else zero
-                        g_x[j] = g_r if log_form else g_r * r
+                    ratio[k, j] = now[j] / ema[t, k, j]  # as the forward's _ratios
+                log_into(ratio[k], log_ratio[k])
+                if sum_k:
+                    for j in range(n):
+                        x[j] += beta[k] * log_ratio[k, j]
+            cut = window > 0 and t % window == 0
+            if sum_k:  # one response of every timescale: g_x = d loss / d (their summed x)
+                resp = _response(ratio[0], x, False, log_form, r, scratch)
+                d_on, d_off = _events_grad(resp, grad_out[b, t, c, 0, 0, lo:hi],
+                                           grad_out[b, t, c, 0, 1, lo:hi], on_th[0], off_th[0],
+                                           log_form, zero, g_x)  # fmt: skip
                 g_on[job, 0] += d_on
                 g_off[job, 0] += d_off
             for k in range(n_k):
                 a, bk = alpha[k], beta[k]
-                cur = ema[t, k]
-                d_alpha, d_beta, d_on, d_off = zero, zero, zero, zero
-                # Only where an event fired is g_x non-zero: the divisions are taken there alone.
-                if not sum_k:
-                    on_ev, off_ev = events[b, t, c, k, 0, lo:hi], events[b, t, c, k, 1, lo:hi]
+                if not sum_k:  # g_x = d loss / d (beta_k ln(I / e_k))
                     for j in range(n):
-                        g_xe[j] = zero
-                        if on_ev[j] != zero or off_ev[j] != zero:
-                            r, log_ratio = _fired(on_ev[j], off_ev[j], on_th[k], off_th[k], hard,
-                                                  log_form, now[j], cur[j], bk)  # fmt: skip
-                            g_on_out = grad_out[b, t, c, k, 0, lo + j]
-                            g_off_out = grad_out[b, t, c, k, 1, lo + j]
-                            above, below = on_ev[j] != zero, off_ev[j] != zero
-                            g_r = (g_on_out if above else zero) - (g_off_out if below else zero)
-                            d_on -= g_on_out if above else zero
-                            d_off += g_off_out if below else zero
-                            gx = g_r if log_form else g_r * r
-                            d_beta += gx * log_ratio
-                            g_i[j] += gx * bk / now[j]
-                            g_xe[j] = gx * bk / cur[j]
-                else:
-                    for j in range(n):
-                        g_xe[j] = zero
-                        if g_x[j] != zero:
-                            d_beta += g_x[j] * np.log(now[j] / cur[j])
-                            g_i[j] += g_x[j] * bk / now[j]
-                            g_xe[j] = g_x[j] * bk / cur[j]
-                if t > 0:  # e(t) = e(t-1) + a (I(t) - e(t-1)): multiplies and adds only
-                    prev = ema[t - 1, k]
-                    keep = zero if cut else 1 - a
-                    for j in range(n):
-                        total = carry[k, j] - g_xe[j]
-                        d_alpha += total * (now[j] - prev[j])
-                        g_i[j] += total * a
-                        carry[k, j] = total * keep
-                else:  # e(0) = I(0)
-                    for j in range(n):
-                        g_i[j] += carry[k, j] - g_xe[j]
-                g_alpha[job, k] += d_alpha
-                g_beta[job, k] += d_beta
-                if not sum_k:
+                        x[j] = bk * log_ratio[k, j]
+                    plain = not log_form and bk == 1
+                    resp = _response(ratio[k], x, plain, log_form, r, scratch)
+                    d_on, d_off = _events_grad(resp, grad_out[b, t, c, k, 0, lo:hi],
+                                               grad_out[b, t, c, k, 1, lo:hi], on_th[k],
+                                               off_th[k], log_form, zero, g_x)  # fmt: skip
                     g_on[job, k] += d_on
                     g_off[job, k] += d_off
-            grad_in[b, t, c, lo:hi] = g_i
+                # x = beta ln(I / e): d x / d I = beta / I, d x / d e = -beta / e = -beta r / I;
+                # e(t) = e(t-1) + a (I(t) - e(t-1)); e(0) = I(0): a gradient of 1 to I(0)
+                prev = ema[t - 1, k] if t > 0 else now
+                a_t = a if t > 0 else zero + 1
+                keep = zero if cut else 1 - a
+                d_alpha, d_beta = zero, zero
+                for j in range(n):
+                    g_xi = g_x[j] * bk * inv_now[j]
+                    total = carry[k, j] - g_xi * ratio[k, j]
+                    d_alpha += total * (now[j] - prev[j])
+                    d_beta += g_x[j] * log_ratio[k, j]
+                    g_i[j] += g_xi + total * a_t
+                    carry[k, j] = total * keep
+                g_alpha[job, k] += d_alpha
+                g_beta[job, k] += d_beta
+            if want_input:
+                grad_in[b, t, c, lo:hi] = g_i
+
+
+@njit(inline="always")
+def _events_grad(r, g_on_out, g_off_out, on_th, off_th, log_form, zero, g_x):
+    """g_x (n,) = d loss / d x of a response r (n,) (r = x, or exp(x) in the ratio form), from
+    its events' gradients (n,): d ON / d r = [r > on_th], d OFF / d r = -[r < off_th] (a hard
+    event's surrogate too); returns the thresholds' gradients."""
+    d_on, d_off = zero, zero
+    for j in range(r.shape[0]):
+        rj, g_on_j, g_off_j = r[j], g_on_out[j], g_off_out[j]  # loads first, then selects
+        g_on_j = g_on_j if rj > on_th else zero
+        g_off_j = g_off_j if rj < off_th else zero
+        d_on -= g_on_j
+        d_off += g_off_j
+        g_x[j] = (g_on_j - g_off_j) if log_form else (g_on_j - g_off_j) * rj
+    return d_on, d_off
 
 
 class FusedEDRFunction(torch.autograd.Function):
@@ -260,29 +278,33 @@ class FusedEDRFunction(torch.autograd.Function):
         params = [v.detach().contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(forward_kernel, b * t * p * c, intensity.detach().numpy(), *params,
                        log_form, hard, sum_k, out.numpy())  # fmt: skip
-        ctx.save_for_backward(intensity, out, alpha, beta, on_th, off_th)
-        ctx.flags = (log_form, hard, sum_k, window)
+        ctx.save_for_backward(intensity, alpha, beta, on_th, off_th)
+        ctx.flags = (log_form, sum_k, window)
         return out
 
     @staticmethod
     def backward(ctx: Any, grad_out: torch.Tensor):
-        intensity, events, alpha, beta, on_th, off_th = ctx.saved_tensors
-        log_form, hard, sum_k, window = ctx.flags
+        intensity, alpha, beta, on_th, off_th = ctx.saved_tensors
+        log_form, sum_k, window = ctx.flags
         b, t, c, p = intensity.shape
         jobs = b * c * ((p + CHUNK - 1) // CHUNK)
         dtype = intensity.dtype
-        grad_in = buffers.RECYCLED.empty(tuple(intensity.shape), dtype)
+        want_input = ctx.needs_input_grad[0]  # frames straight from a video need none
+        grad_in = buffers.RECYCLED.empty(
+            tuple(intensity.shape) if want_input else (1, 1, 1, 1), dtype
+        )
         g_alpha, g_beta = (torch.zeros((jobs, alpha.shape[0]), dtype=dtype) for _ in range(2))
         g_on, g_off = (torch.zeros((jobs, on_th.shape[0]), dtype=dtype) for _ in range(2))
         params = [v.detach().to(dtype).contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(
-            backward_kernel, b * t * p * c, intensity.detach().numpy(), events.detach().numpy(), *params, log_form, hard, sum_k, window,
-            grad_out.to(dtype).numpy(), grad_in.numpy(),  # as it comes: a sum's is one value
+            backward_kernel, b * t * p * c, intensity.detach().numpy(), *params, log_form, sum_k,
+            window, grad_out.to(dtype).numpy(),  # as it comes: a sum's is one broadcast value
+            want_input, grad_in.numpy(),
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
         sums = [g.sum(0).to(v.dtype) for g, v in zip((g_alpha, g_beta, g_on, g_off),
                                                       (alpha, beta, on_th, off_th), strict=True)]  # fmt: skip
-        return (grad_in, *sums, None, None, None, None)
+        return (grad_in if want_input else None, *sums, None, None, None, None)
 
 
 def fused_events(

@@ -277,20 +277,27 @@ def _edr_channel(ema, b, c, lo, n, intensity, first, alpha, beta, on_th, off_th,
 
 
 @njit(inline="always")
+def ema_step(prev, a, now):
+    """The EMA's one step, e(t) = e(t-1) + a (I(t) - e(t-1)): inference, the training forward
+    and the backward's recomputation of it all take it from here."""
+    return prev + a * (now - prev)
+
+
+@njit(inline="always")
 def _ema_events(em, intensity, a, bk, hi_th, lo_th, log_form, hard, on, off):
     """One timescale: ``em`` (n,) moves toward ``intensity`` (n,) by ``a``; the ON / OFF events
     of the ratio ``intensity / em`` (its ``bk`` power, or ``bk`` log) into ``on`` and ``off``."""
     if not log_form and bk == ONE and not hard:
         # The paper's default (ratio form, beta 1, soft): the hot loop.
         for i in range(intensity.shape[0]):
-            e = em[i] + a * (intensity[i] - em[i])
+            e = ema_step(em[i], a, intensity[i])
             em[i] = e
             r = intensity[i] / e
             on[i] = r - hi_th if r > hi_th else ZERO
             off[i] = lo_th - r if r < lo_th else ZERO
         return
     for i in range(intensity.shape[0]):
-        e = em[i] + a * (intensity[i] - em[i])
+        e = ema_step(em[i], a, intensity[i])
         em[i] = e
         ratio = intensity[i] / e
         if log_form:
@@ -306,7 +313,7 @@ def _ema_events(em, intensity, a, bk, hi_th, lo_th, log_form, hard, on, off):
 def _ema_log_sum(em, intensity, a, bk, acc):
     """One timescale of a summed response: ``em`` moves on; ``acc += bk * log(intensity / em)``."""
     for i in range(intensity.shape[0]):
-        e = em[i] + a * (intensity[i] - em[i])
+        e = ema_step(em[i], a, intensity[i])
         em[i] = e
         acc[i] += bk * np.log(intensity[i] / e)
 
