@@ -99,6 +99,11 @@ def test_table2_ucf101_with_the_speed_column(paper) -> None:
     speed = (paper / "table2_speed.md").read_text()
     assert speed.startswith("# Table 2, speed") and "48x32" in speed and "9,800.0" in speed
     assert "generated scene" in speed  # the data source is stated
+    # the learnable EDR's ratio compares two rows timed call by call in turn
+    (pair,) = [
+        line for line in speed.splitlines() if "forward+backward (fused) / inference" in line
+    ]
+    assert "timed in turn" in pair and float(pair.split("|")[2]) > 0
     assert (paper / "figures" / "figure6_ucf101_per_class.png").is_file()
 
 

@@ -34,7 +34,7 @@ from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene
 from edr.records import BenchRow, git_revision, machine_info
 from edr.report.published import load_published
-from edr.report.speed import speed_table
+from edr.report.speed import INFERENCE_IN_TURN, LEARNABLE, TRAIN_FUSED, TRAIN_TORCH, speed_table
 from edr.representations import (
     EDR,
     FDR,
@@ -55,14 +55,22 @@ K3 = (1.0, 3.8, 8.0)
 
 def time_call(fn: Callable[[], object], repeats: int, warmup: int = 3) -> float:
     """Median wall time of ``fn()`` over ``repeats`` calls after ``warmup`` untimed ones."""
+    return time_in_turn([fn], repeats, warmup)[0]
+
+
+def time_in_turn(fns: list[Callable[[], object]], repeats: int, warmup: int = 3) -> list[float]:
+    """Median wall time of each of ``fns``, called in turn (A B A B ...), so that a ratio of two
+    of them holds under the machine's drift from one moment to the next."""
     for _ in range(warmup):
-        fn()
-    times = []
+        for fn in fns:
+            fn()
+    times: list[list[float]] = [[] for _ in fns]
     for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+        for fn, spent in zip(fns, times, strict=True):
+            start = time.perf_counter()
+            fn()
+            spent.append(time.perf_counter() - start)
+    return [statistics.median(spent) for spent in times]
 
 
 def stream(edr: EDR, frames: torch.Tensor, inplace: bool = False) -> None:
@@ -90,6 +98,15 @@ def upstream_gradient(edr: EDR, clip: torch.Tensor) -> torch.Tensor:
     return torch.randn(shape, generator=torch.Generator().manual_seed(0))
 
 
+def trained_once(edr: EDR, clip: torch.Tensor, grad: torch.Tensor) -> EDR:
+    """``edr`` after one Adam step on ``grad``: every parameter off its initial value, as in
+    training (beta = 1 exactly takes a shorter path, with no logarithm or exponential)."""
+    optimizer = torch.optim.Adam(edr.parameters(), lr=0.01)
+    train_step(edr, clip, grad)
+    optimizer.step()
+    return edr
+
+
 @dataclass
 class Job:
     """One row to time: ``call()`` consumes ``frames`` input frames of ``frame_size``."""
@@ -100,6 +117,7 @@ class Job:
     frames: int
     frame_size: str
     busy_neighbour: bool = False  # time it while another process keeps one core busy
+    in_turn_with: Job | None = None  # timed call by call in turn with this row: a ratio's pair
 
 
 @contextmanager
@@ -158,6 +176,10 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
 
     gray = EDR(color="gray")
     grad = upstream_gradient(gray, clip)  # the learnable rows' events have the same shape
+    fused, torch_ops = (
+        trained_once(EDR(color="gray", learnable=True, fast=fast), clip, grad)
+        for fast in (True, False)
+    )
     return [
         whole("EDR K=1 soft gray", "fused numba kernel", gray),
         Job(
@@ -177,18 +199,20 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
         whole("EDR K=3 soft gray", "fused numba kernel", EDR(half_lives=K3, color="gray")),
         whole("EDR K=1 soft RGB", "fused numba kernel", EDR()),
         whole("EDR K=1 soft gray", "torch ops (autograd path)", EDR(color="gray", fast=False)),
-        *(
-            Job(
-                "EDR K=1 soft gray, learnable",
-                f"{label}, forward+backward",
-                lambda rep=rep: train_step(rep, clip, grad),
-                t,
-                size,
-            )
-            for label, rep in (
-                ("fused kernels", EDR(color="gray", learnable=True)),
-                ("torch ops", EDR(color="gray", learnable=True, fast=False)),
-            )
+        Job(
+            LEARNABLE,
+            TRAIN_FUSED,
+            lambda: train_step(fused, clip, grad),
+            t,
+            size,
+            in_turn_with=Job(LEARNABLE, INFERENCE_IN_TURN, lambda: gray(clip), t, size),
+        ),
+        Job(
+            LEARNABLE,
+            TRAIN_TORCH,
+            lambda: train_step(torch_ops, clip, grad),
+            t,
+            size,
         ),
         *(
             Job(f"{name}, busy neighbour", f"fused numba kernel, {threads}", call, t, size, True)
@@ -298,12 +322,13 @@ def main(argv: list[str] | None = None) -> None:
             bar.set_postfix_str(job.name)
             if job is kept[0] and not keep_freed_memory():
                 break  # not glibc: nothing to compare with
+            pair = [job] if job.in_turn_with is None else [job, job.in_turn_with]
             with busy_neighbour() if job.busy_neighbour else nullcontext():
-                seconds = time_call(job.call, repeats, warmup=args.warmup)
-            rows.append(
-                BenchRow(job.name, job.implementation, job.frames, job.frame_size, seconds,
-                    job.frames / seconds)
-            )  # fmt: skip
+                spent = time_in_turn([j.call for j in pair], repeats, warmup=args.warmup)
+            rows += [
+                BenchRow(j.name, j.implementation, j.frames, j.frame_size, s, j.frames / s)
+                for j, s in zip(pair, spent, strict=True)
+            ]
 
     # ---- record and table --------------------------------------------------------------------
     stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
