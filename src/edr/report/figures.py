@@ -35,9 +35,12 @@ def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFram
     ]
 
 
-def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str) -> bool:
-    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band;
-    False if no run has a point to draw."""
+def _draw_curves(
+    ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str, legend: bool = True
+) -> bool:
+    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band
+    (and a legend, unless the figure has one for every panel); False if no run has a point to
+    draw."""
     drawn = False
     for label, group in _cells(runs, labels):
         series = [[(row[x], row[y]) for row in run_history(r) if y in row] for r in group["record"]]
@@ -50,7 +53,7 @@ def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y:
         ax.plot(xs, ys.mean(0), label=f"{label} ({len(series)} runs)")
         ax.fill_between(xs, ys.min(0), ys.max(0), alpha=0.2)
         drawn = True
-    if drawn:
+    if drawn and legend:
         ax.legend(fontsize=7)
     return drawn
 
@@ -130,9 +133,10 @@ def learnable_edr_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     done = done[done["choices.ablation"].str.startswith("learnable")] if not done.empty else done
 
     def draw() -> plt.Figure | None:
-        fig, axes = plt.subplots(1, len(LEARNABLE_PANELS), figsize=(16, 3.5))
+        fig, axes = plt.subplots(1, len(LEARNABLE_PANELS), figsize=(16, 4.2))
+        labels = ["data.source", "choices.ablation", "scale"]
         drawn = [
-            _draw_curves(ax, done, ["data.source", "choices.ablation", "scale"], "epoch", key)
+            _draw_curves(ax, done, labels, "epoch", key, legend=False)
             for ax, key in zip(axes, LEARNABLE_PANELS, strict=True)
         ]
         if not any(drawn):
@@ -143,7 +147,9 @@ def learnable_edr_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
         axes[-1].set_yscale("log")
         fig.suptitle("Learnable EDR trained with LeNet + FT-RCN: its values and gradient per epoch",
                      fontsize=10)  # fmt: skip
-        fig.tight_layout()
+        handles, names = axes[drawn.index(True)].get_legend_handles_labels()
+        fig.legend(handles, names, loc="lower center", ncol=2, fontsize=8)  # one, below the panels
+        fig.tight_layout(rect=(0, 0.16, 1, 1))
         return fig
 
     return done, draw
