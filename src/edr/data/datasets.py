@@ -164,14 +164,15 @@ def kth(
 def resolve_root(
     data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path
 ) -> Path:
-    """``data_root`` when given; else the generated data set ``synthetic`` (a partial of one of
-    ``edr.data.synthetic``'s writers) writes once under ``cache_dir``, named by its settings."""
+    """``data_root`` when given; else the data set ``synthetic`` (a partial of one of the writers
+    of ``edr.data.synthetic`` or ``edr.data.from_videos``) writes once under ``cache_dir``, named
+    by its settings."""
     if data_root:
         return Path(data_root)
     settings = {"fn": synthetic.func.__name__, **synthetic.keywords}
     root = Path(cache_dir).resolve() / f"{synthetic.func.__name__}_{digest(settings, 10)}"
     if not root.exists():
-        log.info("no data_root given: generating a synthetic data set in %s", root)
+        log.info("no data_root given: %s writes a data set in %s", synthetic.func.__name__, root)
     return synthetic(root)
 
 
