@@ -32,7 +32,7 @@ from edr.representations.base import (
     on_off_picture,
     to_gray,
 )
-from edr.representations.edr_grad import fused_events, intensities
+from edr.representations.edr_grad import fused_events
 from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, PositiveInt, check_arguments
 
 OUT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16,
@@ -369,18 +369,21 @@ class EDR(Representation):
     def _fused_train(self, frames: torch.Tensor) -> torch.Tensor:
         """(B, T, C, H, W) -> (B, T, C' * 2 * K', H, W) in the compute dtype, differentiable."""
         b, t, c = frames.shape[:3]
+        on_th, off_th = self.thresholds()
+        settings = {
+            "log_form": self.return_form == "log",
+            "hard": self.threshold == "hard",
+            "sum_k": self.combine == "sum",
+            "window": self.bptt_window or 0,
+            "dtype": self._compute_dtype,
+        }
         if frames.requires_grad or frames.dtype not in (torch.uint8, torch.float32):
             # EDR after a learned layer (torch differentiates the luma), or half-precision frames
             intensity = self._intensity(frames.flatten(0, 1)).unflatten(0, (b, t))
-        else:
-            gray = self.color == "gray" and c == 3
-            intensity = intensities(frames, gray, self.eps, self._compute_dtype)  # (B, T, C', H, W)
-        on_th, off_th = self.thresholds()
-        return fused_events(
-            intensity, self.alpha, self.betas, on_th, off_th, log_form=self.return_form == "log",
-            hard=self.threshold == "hard", sum_k=self.combine == "sum",
-            window=self.bptt_window or 0,
-        )  # fmt: skip
+            return fused_events(intensity, self.alpha, self.betas, on_th, off_th, **settings)
+        gray = self.color == "gray" and c == 3  # the kernels read the frames as they come
+        return fused_events(frames, self.alpha, self.betas, on_th, off_th, gray=gray,
+                            eps=self.eps, **settings)  # fmt: skip
 
     def kernel_args(self, in_channels: int) -> KernelArgs:
         """What the kernels (``edr_kernel``, ``frame_kernel``) take of this layer, in their

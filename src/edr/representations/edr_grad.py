@@ -1,8 +1,9 @@
 """EDR's training path on the CPU: forward and backward as fused numba kernels.
 
-:class:`FusedEDRFunction` is a ``torch.autograd.Function`` over intensities (already offset by
-``eps`` and, for ``color="gray"``, converted to luma by torch, which differentiates that part).
-Its forward runs every pixel's EMAs and events in one pass and keeps nothing but its inputs;
+:class:`FusedEDRFunction` is a ``torch.autograd.Function`` over frames: video as it comes
+(uint8 or float, converted to luma and offset by ``eps`` inside the kernels, as inference does),
+or intensities that torch computed and needs the gradient of (EDR after a learned layer). Its
+forward runs every pixel's EMAs and events in one pass and keeps nothing but its inputs;
 its backward recomputes a chunk's EMAs and responses (cheap: they stay in cache, and the
 events need not be read back from memory), then runs one reverse-time scan per pixel that
 returns the gradients of the intensities, when they need one (so EDR can sit after a learned
@@ -33,37 +34,19 @@ from edr.representations.vector_math import exp_into, log_into
 CHUNK = 1024  # pixels a job runs through time together: 4 KiB rows stream from memory
 
 
-@njit(parallel=True, cache=True)
-def intensity_kernel(x, gray, eps, out):
-    """x (B, T, C, P) uint8 or float -> out (B, T, C', P) = luma (``gray``) or x, + eps."""
-    n_b, n_t, _, n_p = x.shape
-    w_r, w_g, w_b = GRAY_WEIGHTS
-    for bt in prange(n_b * n_t):
-        b, t = bt // n_t, bt % n_t
-        for c in range(out.shape[2]):
-            dst = out[b, t, c]
-            if gray:
-                for p in range(n_p):
-                    dst[p] = w_r * x[b, t, 0, p] + w_g * x[b, t, 1, p] + w_b * x[b, t, 2, p] + eps
-            else:
-                for p in range(n_p):
-                    dst[p] = x[b, t, c, p] + eps
-
-
-def intensities(frames: torch.Tensor, gray: bool, eps: float, dtype: torch.dtype) -> torch.Tensor:
-    """(B, T, C, H, W) frames that need no gradient -> (B, T, C', H, W) intensities + eps in
-    ``dtype`` (luma when ``gray``), in one pass (torch's conversion of uint8 video took longer
-    than the EDR kernels themselves)."""
-    b, t, c, h, w = frames.shape
-    out = buffers.RECYCLED.empty((b, t, 1 if gray else c, h, w), dtype)  # no fresh pages
-    x = frames.contiguous().view(b, t, c, h * w)
-    kernels.launch(intensity_kernel, b * t * h * w, x.numpy(), gray, dtype_eps(eps, dtype),
-                   out.view(b, t, -1, h * w).numpy())  # fmt: skip
-    return out
-
-
-def dtype_eps(eps: float, dtype: torch.dtype) -> np.floating:
-    return np.float64(eps) if dtype == torch.float64 else np.float32(eps)
+@njit(inline="always")
+def _load(frames, b, t, c, lo, hi, gray, weights, eps, dst):
+    """dst (n,) = the intensities of channel c (luma of the three, when ``gray``) of frame t of
+    row b at pixels lo..hi, + eps, in dst's dtype: the kernels read uint8 video as it comes
+    (converting it first cost as much as the forward kernel's own work)."""
+    if gray:
+        red, green, blue = frames[b, t, 0, lo:hi], frames[b, t, 1, lo:hi], frames[b, t, 2, lo:hi]
+        for j in range(hi - lo):
+            dst[j] = weights[0] * red[j] + weights[1] * green[j] + weights[2] * blue[j] + eps
+    else:
+        src = frames[b, t, c, lo:hi]
+        for j in range(hi - lo):
+            dst[j] = src[j] + eps
 
 
 @njit(inline="always")
@@ -74,7 +57,7 @@ def _job(job, channels, n_chunks, pixels):
     return b, c, lo, min(pixels, lo + CHUNK)
 
 
-# The kernels loop over a chunk's contiguous pixels innermost, in the intensities' own dtype,
+# The kernels loop over a chunk's contiguous pixels innermost, in the compute dtype (weights'),
 # branch-free (selects, loads first), so LLVM vectorises them; fastmath lets it reorder the sums.
 # The forward and the backward compute a response with the same helpers, in the same order, so
 # the backward finds the events where the forward fired them without reading them back.
@@ -120,22 +103,26 @@ def _threshold(r, on_th, off_th, hard, zero, on, off):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k, out):
-    """intensity (B, T, C, P) -> events out (B, T, C, K', 2, P). The EMAs live in a chunk's
-    state (K, CHUNK) only, as in inference: the backward recomputes them (:func:`ema_chunk`)."""
-    n_b, n_t, n_c, n_p = intensity.shape
+def forward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_form, hard, sum_k,
+                   out):  # fmt: skip
+    """frames (B, T, C_in, P) -> events out (B, T, C, K', 2, P), C = 1 (``gray``: the luma of
+    three channels, by ``weights``) or C_in, computed in the dtype of ``weights``. The EMAs live
+    in a chunk's state (K, CHUNK) only, as in inference: the backward recomputes them
+    (:func:`ema_chunk`)."""
+    n_b, n_t, n_c, _, _, n_p = out.shape
     n_k = alpha.shape[0]
     n_chunks = (n_p + CHUNK - 1) // CHUNK
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
-        zero = intensity[b, 0, c, lo] * 0
-        work = np.empty((5, hi - lo), intensity.dtype)
-        ratio, x, acc, r, scratch = work[0], work[1], work[2], work[3], work[4]
-        state = np.empty((n_k, hi - lo), intensity.dtype)  # e_k(t - 1); e(-1) = I(0)
+        zero = weights[0] * 0
+        work = np.empty((6, hi - lo), weights.dtype)
+        now, ratio, x, acc, r, scratch = work[0], work[1], work[2], work[3], work[4], work[5]
+        state = np.empty((n_k, hi - lo), weights.dtype)  # e_k(t - 1); e(-1) = I(0)
+        _load(frames, b, 0, c, lo, hi, gray, weights, eps, now)
         for k in range(n_k):
-            state[k] = intensity[b, 0, c, lo:hi]
+            state[k] = now
         for t in range(n_t):
-            now = intensity[b, t, c, lo:hi]
+            _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
             acc[:] = zero
             for k in range(n_k):
                 _ratios(now, state[k], alpha[k], state[k], ratio)
@@ -158,16 +145,17 @@ def forward_kernel(intensity, alpha, beta, on_th, off_th, log_form, hard, sum_k,
 
 
 @njit(inline="always")
-def ema_chunk(intensity, alpha, b, c, lo, hi):
+def ema_chunk(frames, gray, weights, eps, alpha, b, c, lo, hi):
     """The EMAs of one chunk's pixels through the clip, (T, K, n): recomputed by the backward
     (they stay in cache) instead of stored by the forward. (Their ratios I / e are taken again
     frame by frame: a second (T, K, n) array fell out of cache on long clips.)"""
-    n_t, n_k = intensity.shape[1], alpha.shape[0]
-    ema = np.empty((n_t, n_k, hi - lo), intensity.dtype)
+    n_t, n_k = frames.shape[1], alpha.shape[0]
+    ema = np.empty((n_t, n_k, hi - lo), weights.dtype)
+    now = np.empty(hi - lo, weights.dtype)
     for t in range(n_t):
-        now = intensity[b, t, c, lo:hi]
+        _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
         for k in range(n_k):
-            prev = intensity[b, 0, c, lo:hi] if t == 0 else ema[t - 1, k]
+            prev = now if t == 0 else ema[t - 1, k]
             cur, a = ema[t, k], alpha[k]
             for j in range(hi - lo):
                 cur[j] = ema_step(prev[j], a, now[j])
@@ -175,29 +163,30 @@ def ema_chunk(intensity, alpha, b, c, lo, hi):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def backward_kernel(intensity, alpha, beta, on_th, off_th, log_form, sum_k, window, grad_out,
-                    want_input, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
+def backward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_form, sum_k,
+                    window, grad_out, want_input, grad_in, g_alpha, g_beta, g_on, g_off):  # fmt: skip
     """One reverse-time scan per pixel: grad_in (B, T, C, P) (when ``want_input``), and per job
     the partial sums of the parameters' gradients g_alpha, g_beta (jobs, K), g_on, g_off
     (jobs, K'). A hard event takes the soft one's gradient as its surrogate, so the scan is the
     same for both. ``window`` > 0: the EMA's gradient does not cross from frame t to t - 1 where
     t is a multiple of it (truncated backpropagation through time, as if e(t - 1) were a
     constant)."""
-    n_b, n_t, n_c, n_p = intensity.shape
+    n_b, n_t, n_c, _, _, n_p = grad_out.shape
     n_k = alpha.shape[0]
     n_chunks = (n_p + CHUNK - 1) // CHUNK
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
         n = hi - lo
-        zero = intensity[b, 0, c, lo] * 0
-        ema = ema_chunk(intensity, alpha, b, c, lo, hi)  # (T, K, n)
-        ratio = np.empty((n_k, n), intensity.dtype)  # I / e_k at this t
-        log_ratio = np.empty((n_k, n), intensity.dtype)  # ln(I / e_k)
-        carry = np.zeros((n_k, n), intensity.dtype)  # g_e(t+1) (1 - a): what e(t) gets
-        work = np.empty((6, n), intensity.dtype)
-        g_i, inv_now, g_x, x, r, scratch = work[0], work[1], work[2], work[3], work[4], work[5]
+        zero = weights[0] * 0
+        ema = ema_chunk(frames, gray, weights, eps, alpha, b, c, lo, hi)  # (T, K, n)
+        ratio = np.empty((n_k, n), weights.dtype)  # I / e_k at this t
+        log_ratio = np.empty((n_k, n), weights.dtype)  # ln(I / e_k)
+        carry = np.zeros((n_k, n), weights.dtype)  # g_e(t+1) (1 - a): what e(t) gets
+        work = np.empty((7, n), weights.dtype)
+        now, g_i, inv_now, g_x, x, r, scratch = (work[0], work[1], work[2], work[3], work[4],
+                                                 work[5], work[6])  # fmt: skip
         for t in range(n_t - 1, -1, -1):
-            now = intensity[b, t, c, lo:hi]
+            _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
             x[:] = zero
             for j in range(n):
                 g_i[j] = zero
@@ -265,50 +254,61 @@ def _events_grad(r, g_on_out, g_off_out, on_th, off_th, log_form, zero, g_x):
 
 
 class FusedEDRFunction(torch.autograd.Function):
-    """(intensity (B, T, C, P), alpha (K,), beta (K,), on_th (K',), off_th (K',)) ->
-    events (B, T, C, K', 2, P); float32 or float64, CPU, contiguous."""
+    """(frames (B, T, C_in, P), alpha (K,), beta (K,), on_th (K',), off_th (K',)) -> events
+    (B, T, C, K', 2, P), in alpha's dtype (float32 or float64), CPU, contiguous. The frames
+    (uint8 or float) become intensities inside the kernels: their luma when ``gray`` (C = 1),
+    plus ``eps``. They get a gradient only as intensities already: float, ``gray`` off."""
 
     @staticmethod
-    def forward(ctx: Any, intensity, alpha, beta, on_th, off_th, log_form: bool, hard: bool,
-                sum_k: bool, window: int = 0) -> torch.Tensor:  # fmt: skip
-        b, t, c, p = intensity.shape
-        k_out = on_th.shape[0]
+    def forward(ctx: Any, frames, alpha, beta, on_th, off_th, log_form: bool, hard: bool,
+                sum_k: bool, window: int = 0, gray: bool = False,
+                eps: float = 0.0) -> torch.Tensor:  # fmt: skip
+        b, t, c_in, p = frames.shape
+        dtype, c = alpha.dtype, 1 if gray else c_in
         # on recycled memory, as inference's output: fresh tens of MB fault in page by page
-        out = buffers.RECYCLED.empty((b, t, c, k_out, 2, p), intensity.dtype)
+        out = buffers.RECYCLED.empty((b, t, c, on_th.shape[0], 2, p), dtype)
+        source = _source(frames, gray, eps, dtype)
         params = [v.detach().contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
-        kernels.launch(forward_kernel, b * t * p * c, intensity.detach().numpy(), *params,
-                       log_form, hard, sum_k, out.numpy())  # fmt: skip
-        ctx.save_for_backward(intensity, alpha, beta, on_th, off_th)
-        ctx.flags = (log_form, sum_k, window)
+        kernels.launch(forward_kernel, b * t * p * c, *source, *params, log_form, hard, sum_k,
+                       out.numpy())  # fmt: skip
+        ctx.save_for_backward(frames, alpha, beta, on_th, off_th)
+        ctx.flags = (log_form, sum_k, window, gray, eps)
         return out
 
     @staticmethod
     def backward(ctx: Any, grad_out: torch.Tensor):
-        intensity, alpha, beta, on_th, off_th = ctx.saved_tensors
-        log_form, sum_k, window = ctx.flags
-        b, t, c, p = intensity.shape
+        frames, alpha, beta, on_th, off_th = ctx.saved_tensors
+        log_form, sum_k, window, gray, eps = ctx.flags
+        b, t, c, _, _, p = grad_out.shape
         jobs = b * c * ((p + CHUNK - 1) // CHUNK)
-        dtype = intensity.dtype
+        dtype = alpha.dtype
         want_input = ctx.needs_input_grad[0]  # frames straight from a video need none
-        grad_in = buffers.RECYCLED.empty(
-            tuple(intensity.shape) if want_input else (1, 1, 1, 1), dtype
-        )
+        grad_in = buffers.RECYCLED.empty((b, t, c, p) if want_input else (1, 1, 1, 1), dtype)
         g_alpha, g_beta = (torch.zeros((jobs, alpha.shape[0]), dtype=dtype) for _ in range(2))
         g_on, g_off = (torch.zeros((jobs, on_th.shape[0]), dtype=dtype) for _ in range(2))
-        params = [v.detach().to(dtype).contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
+        params = [v.detach().contiguous().numpy() for v in (alpha, beta, on_th, off_th)]
         kernels.launch(
-            backward_kernel, b * t * p * c, intensity.detach().numpy(), *params, log_form, sum_k,
-            window, grad_out.to(dtype).numpy(),  # as it comes: a sum's is one broadcast value
+            backward_kernel, b * t * p * c, *_source(frames, gray, eps, dtype), *params,
+            log_form, sum_k, window,
+            grad_out.to(dtype).numpy(),  # as it comes: a sum's is one broadcast value
             want_input, grad_in.numpy(),
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
         sums = [g.sum(0).to(v.dtype) for g, v in zip((g_alpha, g_beta, g_on, g_off),
                                                       (alpha, beta, on_th, off_th), strict=True)]  # fmt: skip
-        return (grad_in if want_input else None, *sums, None, None, None, None)
+        return (grad_in if want_input else None, *sums, None, None, None, None, None, None)
+
+
+def _source(frames: torch.Tensor, gray: bool, eps: float, dtype: torch.dtype) -> tuple:
+    """What the kernels read the intensities from: (frames, gray, luma weights, eps), the last
+    two in the compute dtype."""
+    np_dtype = np.float64 if dtype == torch.float64 else np.float32
+    weights = np.array(GRAY_WEIGHTS, np_dtype)
+    return frames.detach().numpy(), gray, weights, np_dtype(eps)
 
 
 def fused_events(
-    intensity: torch.Tensor,
+    frames: torch.Tensor,
     alpha: torch.Tensor,
     beta: torch.Tensor,
     on_th: torch.Tensor,
@@ -318,13 +318,16 @@ def fused_events(
     hard: bool,
     sum_k: bool,
     window: int = 0,
+    gray: bool = False,
+    eps: float = 0.0,
+    dtype: torch.dtype = torch.float32,
 ) -> torch.Tensor:
-    """Differentiable EDR events of intensities (B, T, C, H, W) (offset by eps) ->
-    (B, T, C * K' * 2, H, W), channels ordered as :class:`EDR`'s (channel, timescale, ON/OFF)."""
-    b, t, c, h, w = intensity.shape
-    dtype = intensity.dtype
+    """Differentiable EDR events of frames (B, T, C, H, W) (uint8 or float; their luma when
+    ``gray``, + ``eps``) -> (B, T, C' * K' * 2, H, W) in ``dtype``, channels ordered as
+    :class:`EDR`'s (channel, timescale, ON/OFF)."""
+    b, t, c, h, w = frames.shape
     out = FusedEDRFunction.apply(
-        intensity.contiguous().view(b, t, c, h * w), alpha.to(dtype), beta.to(dtype),
-        on_th.to(dtype), off_th.to(dtype), log_form, hard, sum_k, window,
+        frames.contiguous().view(b, t, c, h * w), alpha.to(dtype), beta.to(dtype),
+        on_th.to(dtype), off_th.to(dtype), log_form, hard, sum_k, window, gray, eps,
     )  # fmt: skip
     return out.view(b, t, -1, h, w)
