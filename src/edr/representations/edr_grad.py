@@ -118,11 +118,11 @@ def forward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_f
         work = np.empty((6, hi - lo), weights.dtype)
         now, ratio, x, acc, r, scratch = work[0], work[1], work[2], work[3], work[4], work[5]
         state = np.empty((n_k, hi - lo), weights.dtype)  # e_k(t - 1); e(-1) = I(0)
-        _load(frames, b, 0, c, lo, hi, gray, weights, eps, now)
-        for k in range(n_k):
-            state[k] = now
         for t in range(n_t):
             _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
+            if t == 0:
+                for k in range(n_k):
+                    state[k] = now
             acc[:] = zero
             for k in range(n_k):
                 _ratios(now, state[k], alpha[k], state[k], ratio)
@@ -187,10 +187,11 @@ def backward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_
                                                  work[5], work[6])  # fmt: skip
         for t in range(n_t - 1, -1, -1):
             _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
-            x[:] = zero
             for j in range(n):
                 g_i[j] = zero
                 inv_now[j] = 1 / now[j]
+            if sum_k:
+                x[:] = zero
             for k in range(n_k):
                 for j in range(n):
                     ratio[k, j] = now[j] / ema[t, k, j]  # as the forward's _ratios
