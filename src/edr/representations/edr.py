@@ -16,6 +16,7 @@ ON/OFF pair. Output channel order: for each input channel c, for each timescale 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Literal, NamedTuple
 
@@ -54,6 +55,34 @@ def _per_timescale(value: float | Sequence[float], k: int, name: str) -> torch.T
 
 
 TAU_RANGE = (0.25, 64.0)  # half-lives in frames that parameterization="bounded" can reach
+FULL_SCALE = 255.0  # the brightest intensity (uint8 video's), for the ranges eps and beta take
+
+
+def _overflow_problem(
+    eps: float, betas: Sequence[float], log_form: bool, summed: bool, dtype: torch.dtype
+) -> str | None:
+    """Where eps or beta would take EDR's arithmetic past ``dtype``: the largest return is a
+    pixel at full scale over an EMA at eps, ``(1 + 255/eps)``; the ratio form raises it to beta
+    (the sum of the betas with ``combine="sum"``), the log form multiplies its log by beta."""
+    info = torch.finfo(dtype)
+    name = str(dtype).removeprefix("torch.")
+    # the smallest eps whose largest return is a finite number (and eps itself a normal one)
+    least = max(info.tiny, FULL_SCALE / math.expm1(math.log(info.max)))
+    if eps < least:
+        return (
+            f"eps={eps!r}: expected at least {least:.3g}: a pixel of {FULL_SCALE:g} over an EMA "
+            f"at eps is a return of {1 + FULL_SCALE / eps:.3g}, past {name}'s largest number"
+        )
+    peak = math.log1p(FULL_SCALE / eps)  # the largest |ln(I / ema)| an intensity reaches
+    beta = sum(betas) if summed else max(betas)
+    bound = (info.max if log_form else math.log(info.max)) / peak
+    if beta > bound:
+        what = f"{peak:.3g} * beta" if log_form else f"(1 + {FULL_SCALE:g}/eps) ** beta"
+        return (
+            f"beta={beta:g}{' summed' if summed else ''}: expected at most {bound:.6g} with "
+            f"eps={eps:g}: past it the largest return, {what}, overflows {name}"
+        )
+    return None
 
 
 class KernelArgs(NamedTuple):
@@ -128,6 +157,13 @@ class EDR(Representation):
             raise ValueError('combine="sum" thresholds once: nu_on and nu_off must be scalars')
         nu_on_t = _per_timescale(nu_on, k_out, "nu_on")
         nu_off_t = _per_timescale(nu_off, k_out, "nu_off")
+        betas = _per_timescale(beta, k, "beta").tolist()
+        compute = torch.float64 if out_dtype == "float64" else torch.float32
+        overflow = _overflow_problem(
+            float(eps), betas, return_form == "log", combine == "sum", compute
+        )
+        if overflow:
+            raise ValueError(f"EDR: {overflow}")
 
         self.threshold, self.return_form, self.combine, self.color = (
             threshold,
@@ -230,7 +266,7 @@ class EDR(Representation):
         that repeated calls reuse one buffer; without it, big outputs come from recycled memory
         (:mod:`edr.representations.buffers`).
         """
-        check_clip(frames, name="frames")
+        check_clip(frames, name="frames", dtype=self._compute_dtype)
         b, t, c, h, w = frames.shape
         shape = (b, t, self.out_channels(c), h, w)
         if self.can_fuse(frames):
@@ -270,9 +306,16 @@ class EDR(Representation):
         ``out``: a (B, C'*2*K', H, W) tensor in ``out_dtype`` that receives the events (a
         streaming loop's one output buffer).
         """
-        check_frame(frame)
+        check_frame(frame, dtype=self._compute_dtype)
         b, c, h, w = frame.shape
         shape = (b, self.state_channels(c), self.k, h, w)
+        if state is not None and not (
+            isinstance(state, tuple) and isinstance(getattr(state, "ema", None), torch.Tensor)
+        ):
+            raise ValueError(
+                f"state must be the EDRState a previous step returned, or None; got "
+                f"{type(state).__name__}"
+            )
         if state is not None and tuple(state.ema.shape) != shape:
             raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")
         if reset is not None:

@@ -29,6 +29,8 @@ from tqdm import tqdm
 from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
+    DATA_FINGERPRINT,
+    check_same_data,
     load_checkpoint,
     restore,
     save_atomic,
@@ -51,6 +53,7 @@ from edr.rl.settings import (
     NetworkSettings,
     OptimSettings,
 )
+from edr.tasks.divergence import divergence
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import ConfigError, LoggerName, PositiveInt
@@ -117,14 +120,19 @@ def train_paac(
     steps_done, history = 0, []
     checkpoint = out_dir / CHECKPOINT
     parts = {"network": net, "optimizer": opt, "schedule": schedule}
+    fingerprint = (
+        rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
+    )
     if resume:
         state = load_checkpoint(checkpoint)
+        check_same_data(state, fingerprint, checkpoint)  # the same ROM (or env) it trained on
         restore(state, parts)  # episodes in progress restart
         steps_done, history = state["env_steps"], state["history"]
     scalars = open_logger(logger, out_dir, step=steps_done)
 
     def save() -> None:
-        save_checkpoint(checkpoint, parts, env_steps=steps_done, history=history)
+        save_checkpoint(checkpoint, parts, env_steps=steps_done, history=history,
+                        **{DATA_FINGERPRINT: fingerprint})  # fmt: skip
 
     # ---- training ----------------------------------------------------------------------------
     recent: deque[float] = deque(maxlen=20)
@@ -149,13 +157,18 @@ def train_paac(
                     scalars.log_scalar(key, value, step=steps_done)
         bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
 
+    diverged: dict[str, Any] = {}  # where training stopped being numbers, if it did
     try:
         update = 0
         while steps_done < env_steps:
             update += 1
             dead_units.reset()
             collect_start = time.perf_counter()
-            rollout = actor.rollout(loss.rollout_steps)  # the envs' steps and the forward passes
+            try:
+                rollout = actor.rollout(loss.rollout_steps)  # the envs' steps, forward passes
+            except FloatingPointError as error:  # the network's outputs stopped being numbers
+                diverged = _diverged(steps_done, update, str(error))
+                break
             update_start = time.perf_counter()
             returns = n_step_returns(
                 rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
@@ -164,6 +177,9 @@ def train_paac(
                 rollout.logits, rollout.values, rollout.actions, returns,
                 loss.entropy_coeff, loss.critic_coeff, loss.scale,
             )  # fmt: skip
+            if reason := divergence(net, total):
+                diverged = _diverged(steps_done, update, reason)
+                break
             opt.zero_grad(set_to_none=True)
             total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
@@ -175,8 +191,9 @@ def train_paac(
             updating = False
             recent.extend(rollout.scores)
             losses = {k: float(v) for k, v in loss_parts.items()}
-            if not all(np.isfinite(v) for v in losses.values()):
-                raise FloatingPointError(f"non-finite loss at {steps_done} env steps: {losses}")
+            if reason := divergence(net):  # the step left NaN or inf in the network
+                diverged = _diverged(steps_done, update, reason)
+                break
             window.append({
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
@@ -199,19 +216,24 @@ def train_paac(
     finally:
         bar.close()
         envs.close()
-    save()
+    if diverged:  # the checkpoint keeps the last network that was numbers; no games to score
+        log.warning("training diverged at %d env steps (%s): recorded as diverged",
+                    steps_done, diverged["train/diverged_reason"])  # fmt: skip
+        if window:
+            log_row()
+        scores: list[float] = []
+    else:
+        save()
+        scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
 
-    # ---- evaluation --------------------------------------------------------------------------
-    scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
+    # ---- results -----------------------------------------------------------------------------
     save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
     scored = [row for row in history if "train/score" in row]
     return {
         "data/source": "emulator" if env.env_id is None else "gymnasium",
         "data/game": env.name,
-        "data/fingerprint": (
-            rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
-        ),
+        "data/fingerprint": fingerprint,
         "train/env_steps": steps_done,
         "train/fps": history[-1]["train/fps"] if history else float("nan"),
         "train/score_first": scored[0]["train/score"] if scored else None,
@@ -219,7 +241,14 @@ def train_paac(
         **_prefixed(losses),
         **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
         **_score_metrics(scores),
+        **diverged,
     }
+
+
+def _diverged(env_steps: int, update: int, reason: str) -> dict[str, Any]:
+    """The record's note of a divergence: where (env steps, update) and why."""
+    return {"train/diverged_step": env_steps, "train/diverged_update": update,
+            "train/diverged_reason": reason}  # fmt: skip
 
 
 def _check_env(env: EnvSettings) -> None:
@@ -320,11 +349,13 @@ def _write_results(out_dir: Path, history: list[dict], scores: list[float], titl
 
 
 def _score_metrics(scores: list[float]) -> dict[str, float | int]:
+    """Min, max and mean of the games' scores (NaN when no game was played: a divergence)."""
+    nan = float("nan")
     return {
         "eval/plays": len(scores),
-        "eval/min": float(np.min(scores)),
-        "eval/max": float(np.max(scores)),
-        "eval/mean": float(np.mean(scores)),
+        "eval/min": float(np.min(scores)) if scores else nan,
+        "eval/max": float(np.max(scores)) if scores else nan,
+        "eval/mean": float(np.mean(scores)) if scores else nan,
     }
 
 

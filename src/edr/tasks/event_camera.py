@@ -18,9 +18,10 @@ from typing import Any
 
 import torch
 
-from edr.data.synthetic import video_or_scene
+from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import FDR, Representation
-from edr.validate import PositiveFloat, PositiveInt
+from edr.representations.base import check_enough_frames
+from edr.validate import FilePath, PositiveFloat, PositiveInt
 
 log = logging.getLogger(__name__)
 
@@ -46,15 +47,16 @@ def event_camera(
     out_dir: Path,
     seed: int,
     representations: dict[str, Representation],
-    video: str | None = None,
+    video: FilePath | None = None,
     frames: PositiveInt = 90,
-    height: PositiveInt = 120,
-    width: PositiveInt = 160,
+    height: FrameSide = 120,
+    width: FrameSide = 160,
     fps: PositiveFloat = 25.0,
     timestamp_bits: PositiveInt = 32,
     value_bits: PositiveInt = 16,
 ) -> dict[str, Any]:
     """Run every representation on one clip; returns its data rates and sparsity."""
+    check_enough_frames(frames, representations)
     # ---- the clip ----------------------------------------------------------------------------
     clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
 
