@@ -191,10 +191,14 @@ def kth(
     else:
         raise ValueError(f"protocol must be 'random' or 'person', got {protocol!r}")
     if not chosen:
-        how = f"train_fraction={train_fraction} of {len(videos)}" if protocol == "random" else ""
+        how = (
+            f"train_fraction={train_fraction} of the {len(videos)} videos"
+            if protocol == "random"
+            else "split by person"
+        )
         raise ConfigError(
-            f"the {protocol} split ({how or 'by person'}) of {root} leaves no "
-            f"{'train' if train else 'test'} video: change task.videos.train_fraction or the data"
+            f"task.videos: the {how} under {root} leaves no {'train' if train else 'test'} "
+            "video: change task.videos.train_fraction or protocol, or add videos"
         )
     return VideoSet(tuple(chosen), KTH_ACTIONS)
 

@@ -13,8 +13,13 @@ from torch import nn
 def divergence(module: nn.Module, loss: torch.Tensor | float | None = None) -> str | None:
     """Why training cannot go on, or None: ``loss`` is not a finite number, or a parameter of
     ``module`` holds NaN or inf (the first such is named)."""
-    if loss is not None and not math.isfinite(float(loss)):
-        return f"the loss is {float(loss)}"
+    value = (
+        float(loss.detach() if isinstance(loss, torch.Tensor) else loss)
+        if loss is not None
+        else 0.0
+    )
+    if not math.isfinite(value):
+        return f"the loss is {value}"
     parameters = [p.detach() for p in module.parameters()]
     if not parameters:
         return None
