@@ -339,8 +339,13 @@ def check_node(node: DictConfig, where: str) -> None:
             )
         if isinstance(value, DictConfig) and "_target_" in value:
             check_node(value, name)
-        elif key in hints and (expected := mismatch(value, hints[key])):
+            continue
+        if key in hints and (expected := mismatch(value, hints[key])):
             raise ConfigError(f"{name}={_plain(value)!r}: expected {expected}")
+        if isinstance(value, DictConfig):  # a mapping of nodes (event_camera's representations)
+            for inner, node_value in value.items():
+                if isinstance(node_value, DictConfig) and "_target_" in node_value:
+                    check_node(node_value, f"{name}.{inner}")
 
 
 def _parameters(target: Any) -> list[str] | None:

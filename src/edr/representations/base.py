@@ -17,6 +17,9 @@ import numpy as np
 import torch
 from torch import nn
 
+# The brightest intensity (uint8 video's): what the ranges of EDR's and the DVS simulator's
+# settings are worked out for.
+FULL_SCALE = 255.0
 # ITU-R BT.601 luma weights, the ones OpenCV's RGB2GRAY uses.
 GRAY_WEIGHTS = (0.299, 0.587, 0.114)
 

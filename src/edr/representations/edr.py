@@ -26,6 +26,7 @@ from torch import nn
 
 from edr.representations import buffers, kernels
 from edr.representations.base import (
+    FULL_SCALE,
     Features,
     Representation,
     check_clip,
@@ -55,7 +56,6 @@ def _per_timescale(value: float | Sequence[float], k: int, name: str) -> torch.T
 
 
 TAU_RANGE = (0.25, 64.0)  # half-lives in frames that parameterization="bounded" can reach
-FULL_SCALE = 255.0  # the brightest intensity (uint8 video's), for the ranges eps and beta take
 
 
 def _overflow_problem(
