@@ -135,6 +135,7 @@ def test_cuda_without_a_gpu_is_refused(compose_config, tmp_path) -> None:
         run(compose_config(*TINY_KTH, "task.device=cuda", f"out_dir={tmp_path}"))
 
 
+@pytest.mark.slow
 def test_threads_past_the_cores_end_in_one_line_not_a_crash(cli, tmp_path) -> None:
     """threads=100000 once made torch start 100,000 threads and die (a segfault)."""
     result = cli("edr-run", "threads=100000", "debug=tiny", cwd=tmp_path)
@@ -302,6 +303,7 @@ def test_a_class_without_training_videos_is_refused(compose_config, tmp_path) ->
                            f"task.cache_dir={tmp_path}/cache", f"out_dir={tmp_path}/run"))  # fmt: skip
 
 
+@pytest.mark.slow
 def test_resuming_on_changed_data_is_refused(compose_config, tmp_path, kth_copy, monkeypatch):
     """Stopped (as SIGTERM stops it) after epoch 1, two classes' videos swapped: the run does not
     go on from a checkpoint trained on other data; restored, it does."""
@@ -335,6 +337,7 @@ def test_resuming_on_changed_data_is_refused(compose_config, tmp_path, kth_copy,
     assert record["resumed"] and record["data"]["fingerprint"] == saved["data_fingerprint"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("parameterization", ["log", "bounded"])
 def test_a_learnable_edr_whose_parameters_blow_up_is_recorded_as_diverged(
     compose_config, tmp_path, cache, parameterization
@@ -352,6 +355,7 @@ def test_a_learnable_edr_whose_parameters_blow_up_is_recorded_as_diverged(
     assert np.isnan(metrics["eval/accuracy"])
 
 
+@pytest.mark.slow
 def test_dvs_fine_tuning_on_infinite_events_is_recorded_as_diverged(
     compose_config, tmp_path, cache
 ) -> None:
@@ -363,6 +367,7 @@ def test_dvs_fine_tuning_on_infinite_events_is_recorded_as_diverged(
     assert np.isnan(metrics["eval/accuracy"]) and np.isnan(metrics["eval/zero_shot_accuracy"])
 
 
+@pytest.mark.slow
 def test_an_atari_lr_of_1e30_is_recorded_as_diverged(compose_config, tmp_path) -> None:
     metrics = run(compose_config(
         "task=atari", "debug=tiny", "representation.color=gray", "task.optim.lr=1e30",
