@@ -239,6 +239,28 @@ class EDR(Representation):
             for i, v in enumerate(t.detach())
         }
 
+    def out_of_range(self) -> str | None:
+        """The first value a learnable layer's parameters walked to where the layer no longer
+        works, or None: a half-life or beta not > 0 (beta <= 0 swaps or erases ON and OFF), a
+        nu_off of 1 or more (its OFF threshold is 0 or less), NaN anywhere, or a beta past what
+        float32 holds (:func:`_overflow_problem`)."""
+        with torch.no_grad():
+            nu_on, nu_off = self.nus()
+            rules = (("tau", self.half_lives, "> 0", lambda v: v > 0),
+                     ("beta", self.betas, "> 0", lambda v: v > 0),
+                     ("nu_on", nu_on, "a number", torch.isfinite),
+                     ("nu_off", nu_off, "< 1", lambda v: v < 1))  # fmt: skip
+            for name, values, expected, holds in rules:
+                for i, ok in enumerate(holds(values).tolist()):  # NaN holds no rule
+                    if not ok:
+                        return (
+                            f"EDR's {name}_{i} = {float(values[i]):.4g} left its range ({expected})"
+                        )
+            return _overflow_problem(
+                self.eps, self.betas.tolist(), self.return_form == "log", self.combine == "sum",
+                self._compute_dtype,
+            )  # fmt: skip
+
     def nus(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(K',) nu_on and nu_off."""
         if self.parameterization == "log":

@@ -224,7 +224,9 @@ def fit_recognition(
                 if learnable:  # the EDR layer's gradient, before the step: its stability
                     edr_grad_norms.append(_grad_norm(online))
                 opt.step()
-                reason = divergence(model)  # a step can leave NaN in a layer the loss skips
+                # a step can leave NaN in a layer the loss skips, or a learned EDR value
+                # outside its range (no events, ON and OFF swapped) while the loss is a number
+                reason = divergence(model) or (online.out_of_range() if learnable else None)
             if reason is not None:  # diverged: a result to record, not a crash
                 diverged = {
                     "train/diverged_epoch": epoch + 1,
