@@ -337,7 +337,6 @@ def test_resuming_on_changed_data_is_refused(compose_config, tmp_path, kth_copy,
     assert record["resumed"] and record["data"]["fingerprint"] == saved["data_fingerprint"]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("parameterization", ["log", "bounded"])
 def test_a_learnable_edr_whose_values_blow_up_is_recorded_as_diverged(
     compose_config, tmp_path, cache, parameterization
@@ -356,7 +355,6 @@ def test_a_learnable_edr_whose_values_blow_up_is_recorded_as_diverged(
     assert np.isnan(metrics["eval/accuracy"])
 
 
-@pytest.mark.slow
 def test_dvs_fine_tuning_on_infinite_events_is_recorded_as_diverged(
     compose_config, tmp_path, cache
 ) -> None:
