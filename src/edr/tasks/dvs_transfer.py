@@ -83,7 +83,7 @@ def _split(labels: np.ndarray, train_fraction: float, seed: int) -> tuple[np.nda
 
 
 @torch.no_grad()
-def _accuracy(backbone: nn.Module, clips: torch.Tensor, true: np.ndarray, batch: int = 8
+def _predict(backbone: nn.Module, clips: torch.Tensor, true: np.ndarray, batch: int = 8
               ) -> tuple[np.ndarray, float]:  # fmt: skip
     """(the class each clip is given, the accuracy: NaN where a logit is not a number)."""
     backbone.eval()
@@ -179,7 +179,7 @@ def dvs_transfer(
 
     # ---- 3. straight in, then fine-tuned ------------------------------------------------------
     true = labels_np[test_idx]
-    _, zero_shot = _accuracy(backbone, clips_t[test_idx], true)
+    _, zero_shot = _predict(backbone, clips_t[test_idx], true)
     opt = optimizer(backbone.parameters())
     loss_fn = nn.CrossEntropyLoss()
     train_x, train_y = clips_t[train_idx], torch.from_numpy(labels_np[train_idx])
@@ -206,7 +206,7 @@ def dvs_transfer(
         if diverged:
             break
         bar.set_postfix(loss=f"{loss.item():.3f}")
-    predicted, accuracy = _accuracy(backbone, clips_t[test_idx], true)
+    predicted, accuracy = _predict(backbone, clips_t[test_idx], true)
     scores, confusion = classification_metrics(predicted, true, classes)
     if diverged or np.isnan(accuracy):  # what a network of NaNs predicts is no accuracy
         scores["eval/accuracy"] = float("nan")
