@@ -180,6 +180,7 @@ def train_paac(
             window.append({
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
+                "train/logit_spread": _logit_spread(rollout.logits),
                 "time/collect_ms": 1e3 * (update_start - collect_start),  # env steps + forward
                 "time/update_ms": 1e3 * (update_end - update_start),  # loss, backward, step
                 **_prefixed(losses),
@@ -247,6 +248,12 @@ def _check_env(env: EnvSettings) -> None:
             "task.env.backend=envpool plays ALE games only: your env needs backend auto, serial "
             "or parallel"
         )
+
+
+def _logit_spread(logits: torch.Tensor) -> float:
+    """How much the policy tells states apart: the logits' std across the rollout's states
+    (N*T of them), averaged over actions. Near 0 while the policy ignores what it sees."""
+    return float(logits.detach().reshape(-1, logits.shape[-1]).std(0).mean())  # (N*T, A) -> ()
 
 
 def _prefixed(losses: dict[str, float]) -> dict[str, float]:
