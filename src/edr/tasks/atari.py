@@ -90,7 +90,7 @@ def train_paac(
     critic's mean value, the fraction of dead units per ReLU layer on the latest rollout, and
     the mean score of the last 20 training episodes.
     """
-    _check_env(env)
+    _check_env(env, network)
     backend = env.resolved_backend()
     # ---- envs, network, optimizer ------------------------------------------------------------
     env_kwargs = _env_kwargs(env)
@@ -223,8 +223,13 @@ def train_paac(
     }
 
 
-def _check_env(env: EnvSettings) -> None:
+def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
     """One line for a setting that cannot work, before any env starts."""
+    if network.core == "lenet_ftlstm" and env.frame_stack != 1:
+        raise ConfigError(
+            "task.network.core=lenet_ftlstm reads one frame per step (its LSTM holds the past): "
+            f"add task.env.frame_stack=1 (got {env.frame_stack})"
+        )
     if env.inputs != "fdr" and not isinstance(env.edr, EDR):
         raise ConfigError(
             f"task.env.inputs={env.inputs} computes EDR events on the fly from the representation "
@@ -299,6 +304,8 @@ def _network(
         "num_actions": actions,
         "core": network.core,
         "init": network.init,
+        "input_norm": network.input_norm,
+        "frames": frame_stack,
     }
     return PAACNetwork(**arguments), arguments
 
