@@ -42,6 +42,7 @@ from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.loss import n_step_returns, paac_loss
 from edr.rl.optim import make_optimizer
+from edr.rl.phases import PhaseClock
 from edr.rl.rollout import Actor, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
@@ -51,6 +52,7 @@ from edr.rl.settings import (
     NetworkSettings,
     OptimSettings,
 )
+from edr.rl.transform import ObservationFrame
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import ConfigError, LoggerName, PositiveInt
@@ -100,7 +102,11 @@ def train_paac(
         frame_ring=observations_held(loss.rollout_steps, env.frame_stack), **env_kwargs,
     )  # fmt: skip
     envs.set_seed(seed)
-    actor = Actor(envs, net, env.frame_stack)
+    clock = PhaseClock()  # where each update's time goes, into the history
+    for transform in envs.transform:  # the observation's transform, where it runs in-process
+        if isinstance(transform, ObservationFrame):
+            transform.clock = clock
+    actor = Actor(envs, net, env.frame_stack, clock)
     dead_units = DeadUnits(net)
     opt = make_optimizer(
         optim.name,
@@ -149,28 +155,28 @@ def train_paac(
                     scalars.log_scalar(key, value, step=steps_done)
         bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
 
+    clock.lap()  # the first row's times start with the loop, not with the envs' set-up
     try:
         update = 0
         while steps_done < env_steps:
             update += 1
             dead_units.reset()
-            collect_start = time.perf_counter()
             rollout = actor.rollout(loss.rollout_steps)  # the envs' steps and the forward passes
-            update_start = time.perf_counter()
-            returns = n_step_returns(
-                rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
-            )
-            total, loss_parts = paac_loss(
-                rollout.logits, rollout.values, rollout.actions, returns,
-                loss.entropy_coeff, loss.critic_coeff, loss.scale,
-            )  # fmt: skip
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
-            updating = True
-            opt.step()
-            schedule.step()
-            update_end = time.perf_counter()
+            with clock.phase("backward"):  # the loss and its gradient
+                returns = n_step_returns(
+                    rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
+                )
+                total, loss_parts = paac_loss(
+                    rollout.logits, rollout.values, rollout.actions, returns,
+                    loss.entropy_coeff, loss.critic_coeff, loss.scale,
+                )  # fmt: skip
+                opt.zero_grad(set_to_none=True)
+                total.backward()
+            with clock.phase("optimizer"):
+                grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
+                updating = True
+                opt.step()
+                schedule.step()
             steps_done += rollout.env_steps
             updating = False
             recent.extend(rollout.scores)
@@ -181,8 +187,7 @@ def train_paac(
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
                 "train/logit_spread": _logit_spread(rollout.logits),
-                "time/collect_ms": 1e3 * (update_start - collect_start),  # env steps + forward
-                "time/update_ms": 1e3 * (update_end - update_start),  # loss, backward, step
+                **clock.lap(),  # time/env_ms, observation, forward, backward, optimizer, other
                 **_prefixed(losses),
             })  # fmt: skip
             bar.update(rollout.env_steps)
