@@ -16,6 +16,7 @@ from edr.data.datasets import TimeSplit, VideoSet, kth, ucf101
 from edr.data.synthetic import KTH_ACTIONS, write_synthetic_kth, write_synthetic_ucf101
 from edr.records import read_record
 from edr.run import run
+from edr.tasks.recognition import load_model
 from edr.validate import ConfigError
 
 REAL_VIDEO = Path(
@@ -99,14 +100,19 @@ def test_no_test_frame_in_a_training_clip_on_the_real_kth_clips(tmp_path) -> Non
 
 
 def test_a_run_split_in_time_says_so_in_its_record(compose_config, tmp_path) -> None:
+    """... and a model trained on standardised input (task.normalize_input) loads back whole."""
     root = write_synthetic_kth(tmp_path / "kth", persons=1, scenarios=1, frames=40, height=30,
                                width=40)  # fmt: skip
     out = tmp_path / "run"
     run(compose_config("experiment=kth_real", "debug=tiny", f"task.data_root={root}",
-                       "task.shuffle_frames=true", "representation=fdr", "task.epochs=1",
+                       "task.shuffle_frames=true", "task.normalize_input=true", "task.epochs=1",
                        f"task.cache_dir={tmp_path / 'cache'}", "task.logger=", f"out_dir={out}"))  # fmt: skip
     data = read_record(out / "run.json")["data"]
     assert data["source"] == "real clips, split in time"
     assert data["label"] == "real clips (6 videos), split in time"
     assert "not the paper's protocol" in data["split"] and data["frame_order"] == "shuffled"
     assert data["train_videos"] == data["test_videos"] == 6 and data["test_clips"] == 6
+    model = load_model(out).eval()
+    assert model.input_norm is not None and int(model.input_norm.num_batches_tracked) > 0
+    clip = torch.randint(0, 255, (2, 8, 1, 24, 24), dtype=torch.uint8)
+    assert model(clip).shape == (2, 6)

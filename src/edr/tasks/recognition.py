@@ -25,7 +25,7 @@ from edr.atomic import write_json_atomic
 from edr.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, save_checkpoint
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
-from edr.models import RecognitionModel, activation_sparsity
+from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
@@ -85,7 +85,8 @@ def load_model(run_dir: str | Path) -> RecognitionModel:
     )
     backbone = instantiate_from_record(config["backbone"], "config.backbone")
     backbone = backbone(**saved["backbone_args"])
-    model = RecognitionModel(representation, backbone)
+    norm = input_norm(saved["backbone_args"]["in_channels"]) if saved.get("input_norm") else None
+    model = RecognitionModel(representation, backbone, norm)
     model.load_state_dict(saved["state_dict"])
     return model
 
@@ -114,6 +115,7 @@ def fit_recognition(
     gamma: PositiveFloat = 0.1,
     eval_every: PositiveInt = 1,
     shuffle_frames: bool = False,
+    normalize_input: bool = False,
     resume: bool = False,
     logger: LoggerName = "csv",
     device: str = "auto",
@@ -122,7 +124,9 @@ def fit_recognition(
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
     model and the metrics, and writes the history, confusion matrix, figures and model.
     ``shuffle_frames``: every clip's frames in a random order (before an on-the-fly
-    representation; after a precomputed one), a control for what appearance alone can do."""
+    representation; after a precomputed one), a control for what appearance alone can do.
+    ``normalize_input``: each channel of the backbone's input standardised
+    (:func:`edr.models.input_norm`), whatever the representation."""
     # ---- data, checkpoint, logger ------------------------------------------------------------
     if crop > min(resize):
         raise ConfigError(
@@ -164,7 +168,8 @@ def fit_recognition(
         height=crop,
         width=crop,
     )
-    model = RecognitionModel(online, net).to(dev)
+    norm = input_norm(in_channels) if normalize_input else None
+    model = RecognitionModel(online, net, norm).to(dev)
     opt = optimizer(model.parameters())
     scheduler = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(milestones), gamma=gamma)
     history: list[dict[str, float]] = []
@@ -252,6 +257,7 @@ def fit_recognition(
         {
             "state_dict": model.state_dict(),
             "online": online is not None,
+            "input_norm": normalize_input,
             "backbone_args": backbone_args,
         },
         out_dir / MODEL,
