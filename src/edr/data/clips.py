@@ -235,9 +235,8 @@ class ClipDataset(Dataset):
         if self.train:
             clip = random_clip(frames, self.frames, self.crop, self.scales, self.negate)
             return self._shuffled(clip, 0, None), video.label
-        crops = ten_crops(
-            frames, self.frames, self.crop, self.negate
-        )  # (10, frames, C, crop, crop)
+        # (10, frames, C, crop, crop)
+        crops = ten_crops(frames, self.frames, self.crop, self.negate)
         return self._shuffled(crops, 1, torch.Generator().manual_seed(index)), video.label
 
     def _shuffled(
