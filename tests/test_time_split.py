@@ -99,6 +99,7 @@ def test_no_test_frame_in_a_training_clip_on_the_real_kth_clips(tmp_path) -> Non
         _assert_split_in_time(train, test, {p: n - 1 for p, n in lengths.items()}, clip)  # flows
 
 
+@pytest.mark.slow  # 13 s on a busy 2-core machine
 def test_a_run_split_in_time_says_so_in_its_record(compose_config, tmp_path) -> None:
     """... and a model trained on standardised input (task.normalize_input) loads back whole."""
     root = write_synthetic_kth(tmp_path / "kth", persons=1, scenarios=1, frames=40, height=30,
