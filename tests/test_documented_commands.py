@@ -4,7 +4,8 @@ folder: a command that stops working fails CI.
 
 How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, the first value of
 each axis its experiment file sweeps and the command does not set (one cell per grid axis);
-``/data/...`` paths become small data the test generates in that data set's layout;
+``/data/...`` paths become small data the test generates in that data set's layout, and so do
+the real clips of ``../shared/real-video`` (``EDR_REAL_VIDEO``), long enough to split in time;
 ``edr-bench`` times tiny clips; ``edr-tables`` writes into the temporary folder. ``make``
 targets are not run here: ``make test`` is this suite, and ``make demo`` is ``edr-run -m
 experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``. Nor is
@@ -56,6 +57,15 @@ def _data(tmp: Path) -> dict[str, str]:
     return {"/data/KTH": str(kth), "/data/UCF-101": str(ucf), "/data/clip.avi": str(clip)}
 
 
+def _real_video(tmp: Path) -> Path:
+    """A stand-in for ``../shared/real-video``: generated videos in its ``kth/`` and ``ucf101/``,
+    40 frames each (a split in time of debug=tiny's 8-frame clips needs 40)."""
+    size = {"frames": 40, "height": 60, "width": 80}
+    write_synthetic_kth(tmp / "real-video" / "kth", persons=1, scenarios=1, **size)
+    write_synthetic_ucf101(tmp / "real-video" / "ucf101", groups=1, clips=1, **size)
+    return tmp / "real-video"
+
+
 def _sweep_axes(overrides: list[str]) -> dict[str, str]:
     """The axes an experiment file sweeps, with the first value of each."""
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
@@ -93,7 +103,8 @@ def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
     commands = documented_commands(ROOT / document, SECTIONS.get(document))
     assert commands, f"{document} has no bash block"
     data = _data(tmp_path)
-    env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results")}
+    env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results"),
+           "EDR_REAL_VIDEO": str(_real_video(tmp_path))}  # fmt: skip
     slurm = slurm_environment() if any("hydra/launcher=slurm" in w for w in commands) else None
     for words in commands:
         if words[0] == "make" or any(LOCAL_CLUSTER.name in w for w in words):
