@@ -26,7 +26,9 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "events"
 @pytest.fixture
 def shared():
     if not SHARED.is_dir():
-        pytest.skip(f"real event recordings not found at {SHARED} (the repository's ../shared/events)")
+        pytest.skip(
+            f"real event recordings not found at {SHARED} (the repository's ../shared/events)"
+        )
     return SHARED
 
 
@@ -147,7 +149,7 @@ def test_write_then_read_round_trips(tmp_path, suffix, sensor, stated) -> None:
 def test_write_refuses_an_unwritable_suffix_and_events_off_the_sensor(tmp_path) -> None:
     with pytest.raises(ValueError, match=r"cannot write \.txt"):
         write_recording(tmp_path / "rec.txt", _events(3, 8, 8), (8, 8))
-    with pytest.raises(ValueError, match="x = .* outside its sensor"):
+    with pytest.raises(ValueError, match=r"x = .* outside its sensor"):
         write_recording(tmp_path / "rec.npz", _events(30, 8, 64), (8, 8))
 
 

@@ -84,7 +84,9 @@ def hdf5_chunks(path: Path) -> Iterator[np.ndarray]:
             return
         rows = f[MVSEC_EVENTS]
         if rows.ndim != 2 or rows.shape[1] != 4:
-            raise RecordingError(path, "HDF5 (MVSEC)", f"{MVSEC_EVENTS} is {rows.shape}, not (N, 4)")
+            raise RecordingError(
+                path, "HDF5 (MVSEC)", f"{MVSEC_EVENTS} is {rows.shape}, not (N, 4)"
+            )
         for start in range(0, len(rows), CHUNK_EVENTS):
             block = np.asarray(rows[start : start + CHUNK_EVENTS])  # (n, 4): x, y, t s, p ±1
             t = np.round(block[:, 2] * 1e6).astype(np.int64)

@@ -62,7 +62,11 @@ def _chip(lines: list[str], key: str) -> str | None:
 def _body(path: Path, offset: int) -> np.ndarray:
     """The file's bytes from ``offset`` on, memory-mapped (empty when there are none)."""
     size = path.stat().st_size - offset
-    return np.memmap(path, dtype=np.uint8, mode="r", offset=offset) if size > 0 else np.zeros(0, np.uint8)
+    return (
+        np.memmap(path, dtype=np.uint8, mode="r", offset=offset)
+        if size > 0
+        else np.zeros(0, np.uint8)
+    )
 
 
 def aedat2_chip(path: Path) -> str:
@@ -70,7 +74,9 @@ def aedat2_chip(path: Path) -> str:
     chip = _chip(_header(path)[0], "# AEChip:") or "dvs128"
     if chip not in AEDAT2_CHIP_CLASSES:
         raise RecordingError(
-            path, "AEDAT 2.0", f"its chip is not one this reader knows ({', '.join(AEDAT2_CHIP_CLASSES)})"
+            path,
+            "AEDAT 2.0",
+            f"its chip is not one this reader knows ({', '.join(AEDAT2_CHIP_CLASSES)})",
         )
     return chip
 
@@ -105,7 +111,9 @@ def aedat2_chunks(path: Path) -> Iterator[np.ndarray]:
         yield events_of(t, x, y, p)
 
 
-def write_aedat2(path: str | Path, events: np.ndarray, sensor: tuple[int, int] = (128, 128)) -> Path:
+def write_aedat2(
+    path: str | Path, events: np.ndarray, sensor: tuple[int, int] = (128, 128)
+) -> Path:
     """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) as AEDAT 2.0, naming the smallest
     jAER chip that holds the sensor (DVS128, DAVIS240, DAVIS346)."""
     path = Path(path)
@@ -143,7 +151,9 @@ def aedat31_chunks(path: Path) -> Iterator[np.ndarray]:
     at = 0
     while at < len(body):
         if at + PACKET_HEADER.itemsize > len(body):
-            raise RecordingError(path, "AEDAT 3.1", f"truncated packet header at byte {offset + at}")
+            raise RecordingError(
+                path, "AEDAT 3.1", f"truncated packet header at byte {offset + at}"
+            )
         head = body[at : at + PACKET_HEADER.itemsize].view(PACKET_HEADER)[0]
         size, number = int(head["size"]), int(head["number"])
         at += PACKET_HEADER.itemsize

@@ -115,7 +115,9 @@ def aedat4_sensor(path: Path) -> tuple[int, int] | None:
     return height, width
 
 
-def write_with_faery(path: Path, events: np.ndarray, sensor: tuple[int, int], format_name: str) -> Path:
+def write_with_faery(
+    path: Path, events: np.ndarray, sensor: tuple[int, int], format_name: str
+) -> Path:
     """Events (EVENT_DTYPE) as EVT 3.0 (.raw) or AEDAT 4 (.aedat4), written by faery."""
     faery = faery_module(path, format_name)
     packet = np.empty(len(events), faery.EVENTS_DTYPE)
@@ -219,7 +221,9 @@ def dat_chunks(path: Path) -> Iterator[np.ndarray]:
     if size < 0:
         raise RecordingError(path, "DAT", "truncated inside its header")
     if size % 8:
-        raise RecordingError(path, "DAT", f"truncated: {size} bytes of events is not a multiple of 8")
+        raise RecordingError(
+            path, "DAT", f"truncated: {size} bytes of events is not a multiple of 8"
+        )
     if not size:
         return
     words = np.memmap(path, dtype="<u4", mode="r", offset=offset).reshape(-1, 2)  # (N, 2): t, data
