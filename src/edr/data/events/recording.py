@@ -17,6 +17,7 @@ import numpy as np
 from edr.data.events import datasets, jaer, prophesee
 from edr.data.events.checks import MAX_SIDE, Checked, RecordingError
 from edr.representations.dvs import EVENT_DTYPE
+from edr.validate import ConfigError
 
 
 @dataclass(frozen=True)
@@ -162,7 +163,7 @@ def list_recordings(root: str | Path, classes: tuple[str, ...]) -> list[tuple[Pa
     """(file, label) for every recording under ``root/<class>/``, any supported format."""
     root = Path(root)
     if not root.is_dir():
-        raise FileNotFoundError(
+        raise ConfigError(
             f"event recordings not found under {root}; expected <root>/<action>/<recording>"
         )
     found = [
@@ -172,7 +173,7 @@ def list_recordings(root: str | Path, classes: tuple[str, ...]) -> list[tuple[Pa
         if f.suffix.lower() in RECORDING_SUFFIXES and f.is_file()
     ]
     if not found:
-        raise FileNotFoundError(
+        raise ConfigError(
             f"no event recordings ({' '.join(RECORDING_SUFFIXES)}) under {root}/<action>/ "
             f"for {classes}"
         )
