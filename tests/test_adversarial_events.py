@@ -151,3 +151,13 @@ def test_a_folder_of_only_aedat4_recordings_is_read(tmp_path) -> None:
             out_dir=tmp_path / "run", seed=0, pretrain=_pretrain_that_must_not_run(tmp_path),
             optimizer=None, dvs_root=str(root),
         )  # fmt: skip
+
+
+def test_without_the_events_extra_one_line_names_it(tmp_path, monkeypatch) -> None:
+    monkeypatch.setitem(__import__("sys").modules, "faery", None)  # import faery: ImportError
+    path = tmp_path / "rec.aedat4"
+    path.write_bytes(b"#!AER-DAT4.0\r\n" + bytes(64))
+    with pytest.raises(
+        RecordingError, match=r"rec\.aedat4: AEDAT 4: .*pip install 'edr\[events\]'"
+    ):
+        read_recording(path)

@@ -203,3 +203,32 @@ def test_a_folder_of_recordings_in_any_format(tmp_path) -> None:
         (tmp_path / "boxing" / "user1.aedat", 0),
         (tmp_path / "walking" / "user1.npz", 1),
     ]
+
+
+def test_a_recordings_rates_in_both_bit_models(tmp_path) -> None:
+    from edr.tasks.event_camera import recording_cost
+
+    events = np.zeros(4, EVENT_DTYPE)
+    events["t"], events["x"], events["y"], events["p"] = [0, 10, 40_000, 79_999], 1, 0, [1, 1, 0, 1]
+    path = write_recording(tmp_path / "rec.npz", events, (2, 2))
+    cost = recording_cost(path, fps=25.0, timestamp_bits=32)
+    assert cost["camera/events_per_s"] == pytest.approx(4 / 0.08)
+    assert cost["camera/bits_per_event"] == 3 + 32  # address of 2 x 2 x 2 bins + timestamp
+    assert cost["camera/file_bits_per_event"] == pytest.approx(8 * path.stat().st_size / 4)
+    assert cost["camera/events_per_pixel_frame"] == pytest.approx(4 / (2 * 4))
+    assert cost["camera/sparsity"] == pytest.approx(1 - 3 / 16)  # bins: (0, ON), (1, OFF), (1, ON)
+    assert cost["data/events_sensor"] == "2x2" and cost["data/events_format"] == ".npz"
+
+
+def test_a_recordings_sparsity_is_the_same_chunked(shared, monkeypatch) -> None:
+    from edr.data.events import prophesee
+    from edr.tasks.event_camera import recording_cost
+
+    path = shared / "evt3_sample.raw"
+    whole = recording_cost(path, fps=1000.0, timestamp_bits=32)
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", 10_000)  # many chunks, bins across them
+    assert recording_cost(path, fps=1000.0, timestamp_bits=32) == whole
+    events = read_recording(path)
+    frame = (events["t"] - events["t"][0]) // 1000
+    bins = len(np.unique(np.stack([frame, events["p"], events["y"], events["x"]]), axis=1).T)
+    assert whole["camera/sparsity"] == pytest.approx(1 - bins / (9 * 2 * 720 * 1280))

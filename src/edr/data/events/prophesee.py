@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
+from itertools import chain
 from pathlib import Path
 from types import ModuleType
 
@@ -95,10 +96,17 @@ def faery_chunks(path: Path, format_name: str) -> Iterator[np.ndarray]:
                 path, file_type="evt", dimensions_fallback=(width, height),
                 version_fallback=FAERY_VERSIONS[format_name],
             )  # fmt: skip
-        for packet in stream:  # (N,) faery's (t u64, x u16, y u16, on bool)
-            if packet["t"].max(initial=0) >= 1 << 63:
-                raise RecordingError(path, format_name, "a timestamp beyond 2**63 µs")
-            yield events_of(packet["t"], packet["x"], packet["y"], packet["on"])
+        packets, held = [], 0
+        for packet in chain(stream, [None]):  # (N,) faery's (t u64, x u16, y u16, on bool)
+            if packet is not None:
+                packets.append(packet)
+                held += len(packet)
+            if packets and (held >= CHUNK_EVENTS or packet is None):  # packets into one chunk
+                joined = np.concatenate(packets) if len(packets) > 1 else packets[0]
+                packets, held = [], 0
+                if joined["t"].max(initial=0) >= 1 << 63:
+                    raise RecordingError(path, format_name, "a timestamp beyond 2**63 µs")
+                yield events_of(joined["t"], joined["x"], joined["y"], joined["on"])
     except RecordingError:
         raise
     except Exception as error:  # faery's decoders raise plain Exceptions on a corrupt file

@@ -125,7 +125,9 @@ def iter_recording(path: str | Path, duration_us: float | None = None) -> Iterat
 def read_recording(path: str | Path, duration_us: float | None = None) -> np.ndarray:
     """Events (N,) EVENT_DTYPE of one recording of any supported format, sorted by time; with
     ``duration_us``, only its first ``duration_us`` microseconds are decoded."""
-    chunks = list(iter_recording(path, duration_us))
+    chunks = [c for c in iter_recording(path, duration_us) if len(c)]
+    if len(chunks) == 1:
+        return chunks[0]
     return np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
 
 
