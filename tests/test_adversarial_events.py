@@ -161,3 +161,20 @@ def test_without_the_events_extra_one_line_names_it(tmp_path, monkeypatch) -> No
         RecordingError, match=r"rec\.aedat4: AEDAT 4: .*pip install 'edr\[events\]'"
     ):
         read_recording(path)
+
+
+@pytest.mark.parametrize(("name", "keep"), [("sample.aedat4", 2000), ("evt2_sample.raw", 300_001),
+                                            ("evt3_sample.raw", 300_001)])  # fmt: skip
+def test_a_truncated_real_recording_is_one_line(tmp_path, name, keep) -> None:
+    shared = Path(__file__).resolve().parents[1].parent / "shared" / "events"
+    if not (shared / name).is_file():
+        pytest.skip(
+            f"real event recordings not found at {shared} (the repository's ../shared/events)"
+        )
+    if name.endswith(".aedat4"):
+        pytest.importorskip("faery")
+    path = tmp_path / name
+    path.write_bytes((shared / name).read_bytes()[:keep])
+    with pytest.raises(RecordingError, match=r"(truncated|cannot be decoded)") as caught:
+        read_recording(path)
+    assert str(caught.value).startswith(f"{path}: ") and "\n" not in str(caught.value)

@@ -232,3 +232,19 @@ def test_a_recordings_sparsity_is_the_same_chunked(shared, monkeypatch) -> None:
     frame = (events["t"] - events["t"][0]) // 1000
     bins = len(np.unique(np.stack([frame, events["p"], events["y"], events["x"]]), axis=1).T)
     assert whole["camera/sparsity"] == pytest.approx(1 - bins / (9 * 2 * 720 * 1280))
+
+
+def test_event_camera_saves_the_dvs_and_hard_edr_events(compose_config, tmp_path) -> None:
+    import json
+
+    from edr.run import run
+
+    run(compose_config("task=event_camera", "debug=tiny", "task.save_events=.aedat",
+                       f"out_dir={tmp_path}"))  # fmt: skip
+    metrics = json.loads((tmp_path / "run.json").read_text())["metrics"]
+    # debug=tiny: 8 frames at 25 fps; the DVS's output has 7 intervals, EDR's 8 frames
+    for name, seconds in (("dvs", 7 / 25.0), ("edr_hard", 8 / 25.0)):
+        events = read_recording(tmp_path / f"{name}_events.aedat")
+        assert recording_sensor_size(tmp_path / f"{name}_events.aedat") == (128, 128)  # 64x48 fits
+        assert len(events) == pytest.approx(metrics[f"{name}/events_per_s"] * seconds)
+    assert not (tmp_path / "edr_soft_events.aedat").exists()  # graded: not events

@@ -20,14 +20,22 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
 
-from edr.data.events import detect_format, iter_recording, recording_sensor_size, sensor_of
+from edr.data.events import (
+    detect_format,
+    iter_recording,
+    recording_sensor_size,
+    sensor_of,
+    write_recording,
+)
 from edr.data.synthetic import video_or_scene
-from edr.representations import FDR, Representation
+from edr.representations import FDR, DVSCamera, Representation
+from edr.representations.base import to_gray
+from edr.representations.dvs import EVENT_DTYPE
 from edr.validate import ExistingFile, PositiveFloat, PositiveInt
 
 log = logging.getLogger(__name__)
@@ -48,6 +56,27 @@ def stream_cost(
         "events_per_pixel_frame": events / (out.shape[0] * out.shape[-2] * out.shape[-1]),
         "sparsity": float((out == 0).float().mean()),
     }
+
+
+def events_of_output(
+    rep: Representation, clip: torch.Tensor, out: torch.Tensor, fps: float
+) -> np.ndarray | None:
+    """The events a representation's output stands for (EVENT_DTYPE), or None where it holds
+    no ON/OFF events: the DVS simulator's own (timed within the frame interval), or a counting
+    [ON, OFF] output's (a hard EDR: each count an event at its frame's time)."""
+    if isinstance(rep, DVSCamera):
+        return rep.simulator.simulate(to_gray(clip.unsqueeze(0), channel_dim=2)[0, :, 0].numpy())
+    counts = out.detach().cpu()  # (T', 2, H, W)
+    if isinstance(rep, FDR) or counts.shape[1] != 2 or not torch.equal(counts, counts.round()):
+        return None
+    k, channel, y, x = (c.numpy() for c in torch.nonzero(counts > 0, as_tuple=True))
+    repeats = counts[counts > 0].long().numpy()
+    listed = np.zeros(int(repeats.sum()), EVENT_DTYPE)
+    first = clip.shape[0] - counts.shape[0]  # frames the output starts after
+    listed["t"] = np.repeat(np.floor((k + first) * 1e6 / fps).astype(np.int64), repeats)
+    listed["x"], listed["y"] = np.repeat(x, repeats), np.repeat(y, repeats)
+    listed["p"] = np.repeat(1 - channel, repeats)  # [ON, OFF] -> p 1 ON
+    return np.sort(listed, order="t", kind="stable")
 
 
 def recording_cost(path: str | Path, fps: float, timestamp_bits: int) -> dict[str, Any]:
@@ -105,9 +134,12 @@ def event_camera(
     timestamp_bits: PositiveInt = 32,
     value_bits: PositiveInt = 16,
     events: ExistingFile | None = None,
+    save_events: Literal[".raw", ".aedat4", ".aedat", ".npz"] | None = None,
 ) -> dict[str, Any]:
     """Run every representation on one clip, and measure a real recording (``events``) beside
-    them; returns their data rates and sparsity."""
+    them; returns their data rates and sparsity. ``save_events`` (a format's suffix) writes the
+    events of the DVS simulator and of a hard-threshold EDR into the run folder,
+    ``<name>_events<suffix>``, for other event tools."""
     # ---- a real camera's recording, checked before the clip ------------------------------------
     camera = recording_cost(events, fps, timestamp_bits) if events else {}
 
@@ -130,6 +162,11 @@ def event_camera(
         else:
             cost = stream_cost(out, out.shape[0] / fps, timestamp_bits, value_bits)
         metrics.update({f"{name}/{key}": value for key, value in cost.items()})
+        if save_events and (listed := events_of_output(rep, clip, out, fps)) is not None:
+            written = write_recording(
+                out_dir / f"{name}_events{save_events}", listed, (height, width)
+            )
+            log.info("%s: %d events written to %s", name, len(listed), written)
         log.info("%s: %.3g events/s, %.3g bits/s, sparsity %.3f", name, cost["events_per_s"],
                  cost["bits_per_s"], cost["sparsity"])  # fmt: skip
     if camera:

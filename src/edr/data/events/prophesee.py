@@ -60,6 +60,14 @@ def prophesee_header(path: Path) -> dict[str, str]:
     return found
 
 
+def data_offset(path: Path) -> int:
+    """Where a Prophesee file's data begins: after its '%' header lines."""
+    with path.open("rb") as f:
+        while f.peek(1)[:1] == b"%":
+            f.readline()
+        return f.tell()
+
+
 def prophesee_sensor(path: Path) -> tuple[int, int] | None:
     """(height, width) as the header states it (geometry, format, or the camera's plugin)."""
     header = prophesee_header(path)
@@ -91,6 +99,11 @@ def faery_chunks(path: Path, format_name: str) -> Iterator[np.ndarray]:
         if format_name == "AEDAT 4":
             stream = faery.events_stream_from_file(path, file_type="aedat")
         else:
+            size = path.stat().st_size - data_offset(path)
+            if size % 4:  # EVT 2.0 words are 32-bit; faery drops a partial one silently
+                raise RecordingError(
+                    path, format_name, f"truncated: {size} bytes of words is not a multiple of 4"
+                )
             height, width = prophesee_sensor(path) or (720, 1280)  # faery's own fallback
             stream = faery.events_stream_from_file(
                 path, file_type="evt", dimensions_fallback=(width, height),
@@ -196,10 +209,7 @@ def _evt3_decode(words, state, t, x, y, p):  # pragma: no cover (numba)
 
 def evt3_chunks(path: Path) -> Iterator[np.ndarray]:
     """An EVT 3.0 file's events, a chunk of words at a time (EVENT_DTYPE)."""
-    with path.open("rb") as f:
-        while f.peek(1)[:1] == b"%":
-            f.readline()
-        offset = f.tell()
+    offset = data_offset(path)
     size = path.stat().st_size - offset
     if size % 2:
         raise RecordingError(path, "EVT 3.0", f"truncated: {size} bytes of words is not even")
@@ -219,10 +229,7 @@ def evt3_chunks(path: Path) -> Iterator[np.ndarray]:
 def dat_chunks(path: Path) -> Iterator[np.ndarray]:
     """A DAT file's CD events, a chunk at a time (EVENT_DTYPE)."""
     header = prophesee_header(path)
-    with path.open("rb") as f:
-        while f.peek(1)[:1] == b"%":
-            f.readline()
-        offset = f.tell()
+    offset = data_offset(path)
     if int(re.sub(r"\D", "", header.get("version", "2")) or 2) >= 2:
         offset += 2  # event type, event size
     size = path.stat().st_size - offset
