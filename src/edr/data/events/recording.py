@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from edr.data.events import datasets, jaer, prophesee
-from edr.data.events.checks import MAX_SIDE, Checked, RecordingError
+from edr.data.events.checks import MAX_SIDE, Checked, RecordingError, joined
 from edr.representations.dvs import EVENT_DTYPE
 from edr.validate import ConfigError
 
@@ -126,9 +126,7 @@ def read_recording(path: str | Path, duration_us: float | None = None) -> np.nda
     """Events (N,) EVENT_DTYPE of one recording of any supported format, sorted by time; with
     ``duration_us``, only its first ``duration_us`` microseconds are decoded."""
     chunks = [c for c in iter_recording(path, duration_us) if len(c)]
-    if len(chunks) == 1:
-        return chunks[0]
-    return np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
+    return joined(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
 
 
 def sensor_of(path: str | Path, events: np.ndarray) -> tuple[int, int]:
