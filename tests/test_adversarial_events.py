@@ -178,3 +178,21 @@ def test_a_truncated_real_recording_is_one_line(tmp_path, name, keep) -> None:
     with pytest.raises(RecordingError, match=r"(truncated|cannot be decoded)") as caught:
         read_recording(path)
     assert str(caught.value).startswith(f"{path}: ") and "\n" not in str(caught.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", ["event_camera", "dvs_transfer"])
+def test_edr_run_refuses_a_bad_recording_in_one_line_before_work(cli, tmp_path, task) -> None:
+    recordings = tmp_path / "dvs"
+    for action in ("boxing", "handclapping", "handwaving", "jogging", "running", "walking"):
+        (recordings / action).mkdir(parents=True)
+        write_aedat2(recordings / action / "good.aedat", _events([1, 2, 3]))
+    bad = _truncated(write_aedat2(recordings / "walking" / "bad.aedat", _events([1, 2, 3])))
+    setting = f"task.events={bad}" if task == "event_camera" else f"task.dvs_root={recordings}"
+    run_dir = tmp_path / "run"
+    result = cli("edr-run", f"task={task}", setting, "debug=tiny", f"hydra.run.dir={run_dir}",
+                 cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")})  # fmt: skip
+    output = result.stdout + result.stderr
+    assert result.returncode == 2 and "Traceback" not in output, output[-3000:]
+    assert f"{bad}: AEDAT 2.0: truncated" in output
+    assert not (run_dir / "pretrain").exists()  # refused before the pre-training
