@@ -196,3 +196,15 @@ def test_edr_run_refuses_a_bad_recording_in_one_line_before_work(cli, tmp_path, 
     assert result.returncode == 2 and "Traceback" not in output, output[-3000:]
     assert f"{bad}: AEDAT 2.0: truncated" in output
     assert not (run_dir / "pretrain").exists()  # refused before the pre-training
+
+
+def test_a_truncated_hdf5_file_is_one_line(tmp_path) -> None:
+    h5py = pytest.importorskip("h5py")
+    path = tmp_path / "events.h5"
+    with h5py.File(path, "w") as f:
+        for k in "xytp":
+            f[f"events/{k}"] = np.arange(10_000)
+    _truncated(path)
+    with pytest.raises(RecordingError, match=r"events\.h5: HDF5") as caught:
+        read_recording(path)
+    assert "\n" not in str(caught.value)

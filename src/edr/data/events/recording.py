@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -99,14 +100,35 @@ def recording_sensor_size(path: str | Path) -> tuple[int, int] | None:
     return detect_format(path).sensor(path)
 
 
+def _unreadable_is_one_line(path: Path, name: str, read: Callable[[Path], Any]) -> Any:
+    """``read(path)``, with a file that fails to read (OSError, EOFError, a decoder's
+    ValueError) as one line naming it."""
+    try:
+        return read(path)
+    except RecordingError:
+        raise
+    except (OSError, EOFError, ValueError) as error:
+        raise RecordingError(path, name, f"cannot be read ({error})") from None
+
+
+def _decoded(path: Path, fmt: EventFormat) -> Iterator[np.ndarray]:
+    """``fmt``'s chunks of ``path``, a read failure as one line (see above)."""
+    chunks = fmt.chunks(path)
+    while True:
+        chunk = _unreadable_is_one_line(path, fmt.name, lambda _: next(chunks, None))
+        if chunk is None:
+            return
+        yield chunk
+
+
 def iter_recording(path: str | Path, duration_us: float | None = None) -> Iterator[np.ndarray]:
     """A recording's events, checked, a chunk at a time (bounded memory); with ``duration_us``
     only those before its first event's time + ``duration_us``, and decoding stops there."""
     path = Path(path)
     fmt = detect_format(path)
-    checked = Checked(path, fmt.name, fmt.sensor(path))
+    checked = Checked(path, fmt.name, _unreadable_is_one_line(path, fmt.name, fmt.sensor))
     end: float | None = None
-    for chunk in fmt.chunks(path):
+    for chunk in _decoded(path, fmt):
         if fmt.name == ".npz":  # the suite's own lists may come unsorted
             chunk = np.sort(chunk, order="t", kind="stable")
         checked.check(chunk)
