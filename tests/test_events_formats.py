@@ -248,3 +248,10 @@ def test_event_camera_saves_the_dvs_and_hard_edr_events(compose_config, tmp_path
         assert recording_sensor_size(tmp_path / f"{name}_events.aedat") == (128, 128)  # 64x48 fits
         assert len(events) == pytest.approx(metrics[f"{name}/events_per_s"] * seconds)
     assert not (tmp_path / "edr_soft_events.aedat").exists()  # graded: not events
+
+
+def test_a_davis_event_whose_first_byte_is_hash_is_not_taken_for_header(tmp_path) -> None:
+    events = _events(20, 260, 346)
+    events["y"][0] = 119  # DAVIS346 address: its top byte is (259 - 119) >> 2 = 0x23, '#'
+    path = write_recording(tmp_path / "rec.aedat", events, (260, 346))
+    np.testing.assert_array_equal(read_recording(path), events)

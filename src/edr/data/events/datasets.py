@@ -2,7 +2,8 @@
 
 - N-MNIST (ATIS, 34x34): 5 bytes an event: x, y, then polarity in bit 7 (1 = ON) and a 23-bit
   timestamp (µs) in the remaining bits, big-endian.
-- DSEC: datasets ``events/{x,y,t,p}`` (t µs, p 0/1; blosc-compressed, hence hdf5plugin),
+- DSEC: datasets ``events/{x,y,t,p}`` (t µs as stored: its ``t_offset`` is not added; p 0/1;
+  blosc-compressed, hence hdf5plugin),
   Prophesee Gen3.1 640x480.
 - MVSEC: dataset ``davis/left/events`` (N, 4) float64 rows (x, y, t seconds, p -1/1), DAVIS346.
 - ``.npz``: arrays ``t`` (µs), ``x``, ``y``, ``p`` (1 ON, 0 OFF) of equal length, and optionally

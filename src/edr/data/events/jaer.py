@@ -46,7 +46,7 @@ def _header(path: Path, end: bytes | None = None) -> tuple[list[str], int]:
             if not line.startswith(b"#"):
                 return lines, start
             lines.append(line.decode("latin-1").rstrip("\r\n"))
-            if end is not None and line.startswith(end):
+            if end is not None and line.lower().startswith(end.lower()):
                 return lines, f.tell()
 
 
@@ -69,9 +69,12 @@ def _body(path: Path, offset: int) -> np.ndarray:
     )
 
 
+AEDAT2_HEADER_END = b"#End Of ASCII Header"  # jAER's last header line, where it writes one
+
+
 def aedat2_chip(path: Path) -> str:
     """The AEDAT 2.0 file's chip: a key of CHIPS (DVS128 when none is named)."""
-    chip = _chip(_header(path)[0], "# AEChip:") or "dvs128"
+    chip = _chip(_header(path, AEDAT2_HEADER_END)[0], "# AEChip:") or "dvs128"
     if chip not in AEDAT2_CHIP_CLASSES:
         raise RecordingError(
             path,
@@ -89,7 +92,7 @@ def aedat2_chunks(path: Path) -> Iterator[np.ndarray]:
     """An AEDAT 2.0 file's DVS events, a chunk at a time (EVENT_DTYPE, as stored)."""
     chip = aedat2_chip(path)
     height = CHIPS[chip][0]
-    lines, offset = _header(path)
+    lines, offset = _header(path, AEDAT2_HEADER_END)
     if not lines or not lines[0].startswith("#!AER-DAT2"):
         raise RecordingError(path, "AEDAT 2.0", "its first line is not '#!AER-DAT2.0'")
     body = _body(path, offset)
@@ -131,7 +134,10 @@ def write_aedat2(
     else:
         address = (x << 12) | ((height - 1 - y) << 22) | (p << 11)
     words = np.stack([address, events["t"].astype(np.uint32)], axis=1).astype(">u4")  # (N, 2)
-    header = f"#!AER-DAT2.0\r\n# This is a raw AE data file created by edr\r\n# AEChip: {AEDAT2_CHIP_CLASSES[chip]}\r\n"
+    header = (
+        f"#!AER-DAT2.0\r\n# This is a raw AE data file created by edr\r\n"
+        f"# AEChip: {AEDAT2_CHIP_CLASSES[chip]}\r\n{AEDAT2_HEADER_END.decode()}\r\n"
+    )
     with atomic_path(path) as tmp:
         tmp.write_bytes(header.encode() + words.tobytes())
     return path

@@ -1,4 +1,4 @@
-"""One reader for every event format, a writer for three, and the recordings of a folder.
+"""One reader for every event format, writers for four, and the recordings of a folder.
 
 The format comes from the file's first bytes (its magic or header), then from its suffix.
 Every reader returns ``EVENT_DTYPE`` events (t µs, x, y, p with 1 = ON) sorted by time, checked
@@ -44,7 +44,7 @@ FORMATS = {
     f.name: f
     for f in (
         EventFormat("AEDAT 2.0", (".aedat", ".dat"), jaer.aedat2_sensor, jaer.aedat2_chunks,
-                    lambda path, events, sensor: jaer.write_aedat2(path, events, sensor)),
+                    jaer.write_aedat2),
         EventFormat("AEDAT 3.1", (".aedat", ".aedat3"), jaer.aedat31_sensor, jaer.aedat31_chunks),
         EventFormat("AEDAT 4", (".aedat4",), prophesee.aedat4_sensor, _faery("AEDAT 4"),
                     _faery_writer("AEDAT 4")),
