@@ -5,6 +5,7 @@ here in their layouts."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -255,3 +256,40 @@ def test_a_davis_event_whose_first_byte_is_hash_is_not_taken_for_header(tmp_path
     events["y"][0] = 119  # DAVIS346 address: its top byte is (259 - 119) >> 2 = 0x23, '#'
     path = write_recording(tmp_path / "rec.aedat", events, (260, 346))
     np.testing.assert_array_equal(read_recording(path), events)
+
+
+@pytest.mark.slow
+def test_dvs_transfer_on_a_folder_of_mixed_formats(compose_config, tmp_path) -> None:
+    """Recordings of every writable format, one with DV's absolute (epoch) timestamps: each is
+    binned from its own first event."""
+    import json
+
+    from edr.data.synthetic import KTH_ACTIONS
+    from edr.run import run
+
+    if importlib.util.find_spec("faery") is None:
+        pytest.skip("faery (the events extra) is not installed")
+    recordings = tmp_path / "dvs"
+    for label, action in enumerate(KTH_ACTIONS):
+        (recordings / action).mkdir(parents=True)
+        for i, suffix in enumerate((".raw", ".aedat4", ".aedat", ".npz")[label % 2 :: 2]):
+            events = _events(3000, 128, 128, seed=label * 10 + i)
+            events["t"] = events["t"] % 400_000 + (1_605_537_493_718_345 if i else 0)
+            events = np.sort(events, order="t")
+            write_recording(recordings / action / f"user{i}{suffix}", events, (128, 128))
+    run(compose_config("task=dvs_transfer", "debug=tiny", f"out_dir={tmp_path / 'run'}",
+                       f"task.pretrain.cache_dir={tmp_path / 'cache'}",
+                       f"task.dvs_root={recordings}"))  # fmt: skip
+    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert record["status"] == "finished"
+    assert record["data"]["train_recordings"] + record["data"]["test_recordings"] == 12
+
+
+def test_a_clip_is_binned_from_its_recordings_first_event() -> None:
+    from edr.tasks.dvs_transfer import _event_clip
+
+    events = _events(100, 128, 128)
+    events["t"] = np.sort(events["t"] % 200_000) + 1_605_537_493_718_345  # DV's epoch time
+    start = int(events["t"][0])
+    clip = _event_clip(events, 128, 128, 40_000.0, frames=4, crop=128, start_us=start)
+    assert float(clip.sum()) == (events["t"] < start + 160_000).sum() > 0
