@@ -1,6 +1,6 @@
-"""Every shell command of the README, sweeps/README.md and paper/README.md (their fenced
-``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary folder: a command that stops
-working fails CI.
+"""Every shell command of the README, sweeps/README.md, paper/README.md, docs/runs.md's
+Slurm section and docs/events.md (their fenced ``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary
+folder: a command that stops working fails CI.
 
 How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, the first value of
 each axis its experiment file sweeps and the command does not set (one cell per grid axis);
@@ -8,7 +8,9 @@ each axis its experiment file sweeps and the command does not set (one cell per 
 ``../shared/events/`` the real recordings beside the repository (skipped when absent);
 ``edr-bench`` times tiny clips; ``edr-tables`` writes into the temporary folder. ``make``
 targets are not run here: ``make test`` is this suite, and ``make demo`` is ``edr-run -m
-experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``.
+experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``. Nor is
+``sweeps/slurm-local.sh``: CI starts its cluster around the tests; a ``hydra/launcher=slurm``
+command runs through that cluster (any whose ``sinfo`` answers), and is left out where none is up.
 """
 
 from __future__ import annotations
@@ -21,20 +23,27 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
+from cluster import LOCAL_CLUSTER, slurm_environment
 from edr.data.synthetic import write_synthetic_kth, write_synthetic_ucf101
 from edr.data.video import write_video
 from edr.run import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md", "docs/events.md")
+DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md", "docs/runs.md", "docs/events.md")
+SECTIONS = {"docs/runs.md": "## On Slurm"}  # the rest of the page repeats the README's commands
 SHARED_EVENTS = ROOT.parent / "shared" / "events"  # real recordings docs/events.md reads
 BENCH_TINY = ("--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
               "--width", "48", "--atari-batch", "2", "--long-frames", "9")  # fmt: skip
 
 
-def documented_commands(document: Path) -> list[list[str]]:
-    """The commands of ``document``'s ```bash blocks, split as the shell would, comments off."""
-    blocks = re.findall(r"```bash\n(.*?)```", document.read_text(), flags=re.S)
+def documented_commands(document: Path, section: str | None = None) -> list[list[str]]:
+    """The commands of ``document``'s ```bash blocks (those of its ``section`` if given, up to
+    the next heading of its level), split as the shell would, comments off."""
+    text = document.read_text()
+    if section is not None:
+        level = section.split()[0]
+        text = re.split(rf"\n{level} ", text.split(f"\n{section}\n", 1)[1], maxsplit=1)[0]
+    blocks = re.findall(r"```bash\n(.*?)```", text, flags=re.S)
     text = "\n".join(blocks).replace("\\\n", " ")
     return [words for line in text.splitlines() if (words := shlex.split(line, comments=True))]
 
@@ -84,7 +93,7 @@ def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
 @pytest.mark.slow
 @pytest.mark.parametrize("document", DOCUMENTS)
 def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
-    commands = documented_commands(ROOT / document)
+    commands = documented_commands(ROOT / document, SECTIONS.get(document))
     assert commands, f"{document} has no bash block"
     if "../shared/events/" in (ROOT / document).read_text() and not SHARED_EVENTS.is_dir():
         pytest.skip(
@@ -92,9 +101,14 @@ def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
         )
     data = _data(tmp_path)
     env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results")}
+    slurm = slurm_environment() if any("hydra/launcher=slurm" in w for w in commands) else None
     for words in commands:
-        if words[0] == "make":
+        if words[0] == "make" or any(LOCAL_CLUSTER.name in w for w in words):
             continue  # see the module's docstring
+        if "hydra/launcher=slurm" in words:
+            if slurm is None:
+                continue  # no cluster here (see the module's docstring)
+            env.update(slurm)  # SLURM_CONF, where the local cluster's is not set
         command = tiny(words, data, tmp_path)
         result = cli(*command, cwd=tmp_path, env=env)
         shown = shlex.join(words)

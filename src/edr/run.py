@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import inspect
 import logging
+import os
 import random
 import signal
 import sys
@@ -22,7 +23,7 @@ import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
+from hydra.errors import CompactHydraException, InstantiationException
 from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -200,12 +201,23 @@ def _in_sweep() -> bool:
     return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
 
 
+class JobFailed(CompactHydraException):
+    """A submitit job's config error, handed back to the sweep that waits for the job's result,
+    which prints it as one line (a job that exits leaves no result, and without Slurm accounting
+    the sweep would wait for it forever)."""
+
+
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def main(cfg: DictConfig) -> None:
+    in_job = bool(os.environ.get("SUBMITIT_EXECUTOR"))  # a Slurm or local submitit job
+    if in_job:  # submitit ignores SIGTERM; scancel, a time limit or preemption end it as kill does
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         run(cfg)
     except (ConfigError, UnreadableRecord, UnreadableCheckpoint) as error:  # one line, no trace
         log.error("%s", error)
+        if in_job:
+            raise JobFailed(str(error)) from None
         raise SystemExit(2) from None
 
 
