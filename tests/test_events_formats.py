@@ -63,6 +63,7 @@ def test_evt3_matches_the_evt3_decoder(shared) -> None:
 
 def test_aedat4_matches_the_aedat_decoder(shared) -> None:
     aedat = pytest.importorskip("aedat")
+    pytest.importorskip("faery")
     path = shared / "sample.aedat4"
     decoder = aedat.Decoder(str(path))
     stream = next(i for i, s in decoder.id_to_stream().items() if s["type"] == "events")
@@ -74,6 +75,7 @@ def test_aedat4_matches_the_aedat_decoder(shared) -> None:
 
 
 def test_evt2_matches_its_published_layout(shared) -> None:
+    pytest.importorskip("faery")
     path = shared / "evt2_sample.raw"
     words = np.frombuffer(_body(path, b"%"), "<u4").astype(np.int64)
     kind = words >> 28  # 0 CD OFF, 1 CD ON, 8 EVT_TIME_HIGH
@@ -111,6 +113,7 @@ def test_a_header_only_davis346_file_is_refused_as_empty(shared) -> None:
 
 
 def test_a_duration_reads_only_the_first_microseconds(shared) -> None:
+    pytest.importorskip("faery")
     path = shared / "evt2_sample.raw"
     whole = read_recording(path)
     first = read_recording(path, duration_us=1000)
