@@ -1,11 +1,12 @@
-"""Every shell command of the README, sweeps/README.md, paper/README.md and docs/runs.md's
-Slurm section (their fenced ``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary
+"""Every shell command of the README, sweeps/README.md, paper/README.md, docs/runs.md's
+Slurm section and docs/events.md (their fenced ``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary
 folder: a command that stops working fails CI.
 
 How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, the first value of
 each axis its experiment file sweeps and the command does not set (one cell per grid axis);
 ``/data/...`` paths become small data the test generates in that data set's layout, and so do
 the real clips of ``../shared/real-video`` (``EDR_REAL_VIDEO``), long enough to split in time;
+``../shared/events/`` the real recordings beside the repository (skipped when absent);
 ``edr-bench`` times tiny clips; ``edr-tables`` writes into the temporary folder. ``make``
 targets are not run here: ``make test`` is this suite, and ``make demo`` is ``edr-run -m
 experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``. Nor is
@@ -29,8 +30,9 @@ from edr.data.video import write_video
 from edr.run import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md", "docs/runs.md")
+DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md", "docs/runs.md", "docs/events.md")
 SECTIONS = {"docs/runs.md": "## On Slurm"}  # the rest of the page repeats the README's commands
+SHARED_EVENTS = ROOT.parent / "shared" / "events"  # real recordings docs/events.md reads
 BENCH_TINY = ("--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
               "--width", "48", "--atari-batch", "2", "--long-frames", "9")  # fmt: skip
 
@@ -81,6 +83,7 @@ def _substituted(word: str, data: dict[str, str]) -> str:
 
 def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
     """The command made small (see the module's docstring)."""
+    words = [w.replace("../shared/events/", f"{SHARED_EVENTS}/") for w in words]
     program, args = words[0], [_substituted(w, data) for w in words[1:]]
     if program == "edr-run" and not {"--help", "--cfg"} & set(args):
         args = [*args, "debug=tiny"] if "debug=tiny" not in args else args
@@ -102,6 +105,10 @@ def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
 def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
     commands = documented_commands(ROOT / document, SECTIONS.get(document))
     assert commands, f"{document} has no bash block"
+    if "../shared/events/" in (ROOT / document).read_text() and not SHARED_EVENTS.is_dir():
+        pytest.skip(
+            f"{document} reads real recordings; {SHARED_EVENTS} (../shared/events) is absent"
+        )
     data = _data(tmp_path)
     env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results"),
            "EDR_REAL_VIDEO": str(_real_video(tmp_path))}  # fmt: skip
