@@ -11,7 +11,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, run_history, unfinished
+from edr.report.runs import cells, finished, placeable, run_history, unfinished
 from edr.rl.settings import INPUT_NAMES
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
@@ -196,7 +196,7 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
 
 
 def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
-    done = atari_runs(runs)
+    done, unplaced = placeable(atari_runs(runs), ["game", "input"])
     grouped = cells(done, list(SCORES.values()), ["game", "input"])
     frame, extra = pd.DataFrame(), ""
     if not grouped.empty:
@@ -236,7 +236,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a run "
             "(30 full games at full scale), each then averaged over seeds (± std).",
         ],
-        unfinished=unfinished(runs, "atari"),
+        unfinished=unfinished(runs, "atari", unplaced),
         extra=extra,
         paper=_paper_rows(published),
         paper_notes=[

@@ -9,7 +9,7 @@ import pandas as pd
 
 from edr.report.published import lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, unfinished
+from edr.report.runs import cells, finished, placeable, unfinished
 
 RATES = ("events_per_s", "bits_per_s", "bits_per_event", "sparsity")
 
@@ -24,6 +24,7 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         }
     )
     metrics = [f"metrics.{n}/{r}" for n in names for r in RATES]
+    done, unplaced = placeable(done, ["data.video", "data.size"])
     grouped = cells(done, metrics, ["data.video", "data.size"])
     rows = []
     for _, cell in grouped.iterrows():
@@ -74,7 +75,7 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "timestamp (+ a 16-bit value for graded events). Frames: every pixel, 8 bits. "
             "Sparsity: the fraction of zero outputs. bits vs frames: bits/s over the frames'.",
         ],
-        unfinished=unfinished(runs, "event_camera"),
+        unfinished=unfinished(runs, "event_camera", unplaced),
         paper=paper,
         paper_notes=[
             f"Source: {lookup(published, 'table3_event_camera', 'source')}. The paper compares "

@@ -10,7 +10,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, unfinished
+from edr.report.runs import cells, finished, placeable, unfinished
 from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
 
 ACCURACY = "metrics.eval/accuracy"
@@ -67,6 +67,7 @@ def _accuracy_rows(
 def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done = finished(runs, "kth", without_ablations)
     labels = ["choices.backbone", "choices.representation"]
+    done, unplaced = placeable(done, labels)
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = (
         pd.DataFrame()
@@ -103,7 +104,7 @@ def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "paper/published.yaml). Cell: the config fingerprint without the seed; rows with the "
             "same labels and another cell differ in some other setting.",
         ],
-        unfinished=unfinished(runs, "kth"),
+        unfinished=unfinished(runs, "kth", unplaced),
         paper=pd.DataFrame(
             [
                 {"Backbone": backbone, "Representation": rep, "Accuracy (%)": cite(acc)}
@@ -126,6 +127,7 @@ def table2_ucf101(
 ) -> Table:
     done = finished(runs, "ucf101", without_ablations)
     labels = ["choices.representation", "choices.backbone"]
+    done, unplaced = placeable(done, labels)
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = pd.DataFrame()
     if not grouped.empty:
@@ -178,7 +180,7 @@ def table2_ucf101(
             "Accuracy as in Table 4; speed from the newest `edr-bench` record (see "
             "table2_speed.md for every timed row)."
         ],
-        unfinished=unfinished(runs, "ucf101"),
+        unfinished=unfinished(runs, "ucf101", unplaced),
         extra=extra,
         paper=pd.DataFrame(
             [
@@ -202,6 +204,7 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         "metrics.pretrain/eval/accuracy",
         "metrics.eval/chance",
     ]
+    done, unplaced = placeable(done, ["choices.backbone", "data.events"])
     grouped = cells(done, metrics, ["choices.backbone", "data.events"])
     frame = pd.DataFrame()
     if not grouped.empty:
@@ -241,7 +244,7 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "Fine-tuned on 70 % of the recordings per class, tested on the other 30 %. "
             "Events: simulated by our DVS simulator unless recordings are named."
         ],
-        unfinished=unfinished(runs, "dvs_transfer"),
+        unfinished=unfinished(runs, "dvs_transfer", unplaced),
         paper=pd.DataFrame(
             [
                 {

@@ -346,7 +346,8 @@ def evaluate_checkpoint(
     ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
     (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
     the metrics. The record builds only the suite's own parts (:mod:`edr.rebuild`), and a
-    module it names (``task.env.env_module``) is imported only with ``trust_env_module``.
+    module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is
+    imported only with ``trust_env_module``.
     """
     run_dir = Path(run_dir)
     record = read_record(run_dir / "run.json")
@@ -358,10 +359,12 @@ def evaluate_checkpoint(
     # train_paac's arguments, EDR built
     task = instantiate_from_record(record["config"]["task"], "config.task").keywords
     env = task["env"]
-    if env.env_module is not None and not trust_env_module:
+    if env.modules and not trust_env_module:
         raise UntrustedRecord(
-            f"{run_dir / 'run.json'} names task.env.env_module={env.env_module}: importing it "
-            "runs its code; pass --trust-env-module (trust_env_module=True) if you trust it"
+            f"{run_dir / 'run.json'} names the module {', '.join(env.modules)} (task.env: "
+            f"env_module={env.env_module}, env_id={env.env_id}, game={env.game}): making its env "
+            "imports it, which runs its code; pass --trust-env-module (trust_env_module=True) "
+            "if you trust it"
         )
     evaluation = task["evaluation"]
     env_kwargs = _env_kwargs(env)
