@@ -229,3 +229,72 @@ def test_the_trust_check_comes_before_any_env_is_made(tmp_path, monkeypatch) -> 
     with pytest.raises(UntrustedRecord, match="pwn_mod"):
         evaluate_checkpoint(run_dir)
     assert "pwn_mod" not in sys.modules and not (tmp_path / "PWNED").exists()
+
+
+# ---- issue 38: plain edr-tables renders the committed scope or an explicit folder, never a mix ---
+def test_plain_edr_tables_where_there_are_no_records_says_so_and_exits_2(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    _write(tmp_path / "results" / "runs" / "kth" / "mine", _record())  # a user's run: not paper/'s
+    with pytest.raises(SystemExit) as exit_:
+        tables.main([])
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and "no records found under results/learning/" in error
+    assert error.count("\n") == 1 and not (tmp_path / "paper").exists()
+
+
+def test_plain_edr_tables_with_part_of_the_committed_scope_refuses(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    for folder in tables.COMMITTED_SCOPE[:-1]:
+        _write(folder / "one", _record())
+    with pytest.raises(SystemExit) as exit_:
+        tables.main([])
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and "results/sweeps/tiny/demo not found: `make paper`" in error
+    assert not (tmp_path / "paper").exists()
+
+
+def test_the_committed_scope_renders_into_paper_and_nothing_else(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    for folder in tables.COMMITTED_SCOPE:
+        _write(folder / "one", _record(fingerprint=str(folder)))
+    _write(tmp_path / "results" / "runs" / "kth" / "mine", _record(seed=5))  # not in the scope
+    tables.main([])
+    table = (tmp_path / "paper" / "table4_kth.md").read_text()
+    assert "results/learning/table1_pong/one/run.json" in table
+    assert "results/runs" not in table  # no mix
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--runs", "{tmp}/runs"], "--runs needs --out"),
+        (["--runs", "{tmp}/empty", "--out", "{tmp}/out"], "no records found under {tmp}/empty"),
+    ],
+)
+def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, capsys) -> None:
+    _write(tmp_path / "runs" / "good", _record())
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SystemExit) as exit_:
+        tables.main([a.format(tmp=tmp_path) for a in args])
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and message.format(tmp=tmp_path) in error
+    assert error.count("\n") == 1 and not (tmp_path / "out").exists()
+
+
+def test_a_record_lacking_the_fields_a_table_groups_by_is_listed_not_a_nan_row(tmp_path) -> None:
+    env = {"game": "Pong", "inputs": "fdr"}
+    runs = tmp_path / "runs"
+    metrics = {"eval/mean": 1.0, "eval/max": 2.0, "eval/min": 0.0, "eval/plays": 2}
+    for name, config_env in (("new", env), ("old", {})):
+        _write(runs / name, _record("atari", fingerprint=name, metrics=metrics,
+                                    data={"source": "emulator"},
+                                    config={"seed": 0, "task": {"env": config_env}}))  # fmt: skip
+    _render(runs, tmp_path / "out")
+    table = (tmp_path / "out" / "table1_atari.md").read_text()
+    assert "nan" not in table
+    (line,) = [line for line in table.splitlines() if "old/run.json`:" in line]
+    assert "not placed (finished, but lacks game, input" in line

@@ -100,6 +100,8 @@ def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
 
     def draw() -> plt.Figure | None:
         games = sorted(done["game"].dropna().unique())
+        if not games:  # records from before the game was recorded: listed under Table 1
+            return None
         fig, axes = plt.subplots(2, len(games), figsize=(4.5 * len(games), 6), squeeze=False)
         drawn = []
         for k, game in enumerate(games):
