@@ -298,3 +298,141 @@ def test_a_record_lacking_the_fields_a_table_groups_by_is_listed_not_a_nan_row(t
     assert "nan" not in table
     (line,) = [line for line in table.splitlines() if "old/run.json`:" in line]
     assert "not placed (finished, but lacks game, input" in line
+
+
+# ---- case 5: the store's messages --------------------------------------------------------------
+def _can_mount() -> bool:
+    """Whether this process may mount a tmpfs in its own mount namespace (root, unshare)."""
+    probe = "mount -t tmpfs -o size=64k tmpfs /mnt && umount /mnt"
+    return subprocess.run(["unshare", "-m", "sh", "-c", probe], capture_output=True).returncode == 0
+
+
+needs_mount = pytest.mark.skipif(not _can_mount(), reason="needs unshare -m and mount (root)")
+
+
+def _edr_run(
+    *args: str, cwd: Path, mount: str = "", after: str = "true", env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
+    """``edr-run args`` (in a private mount namespace with ``mount`` done first, if given, and
+    the shell command ``after`` run while it is mounted); its exit status is edr-run's."""
+    command = " ".join([sys.executable, "-m", "edr.run", *(f"'{a}'" for a in args)])
+    command = f"{command}; rc=$?; {after}; exit $rc"
+    if mount:
+        command = f"{mount} && {{ {command}; }}"
+    return subprocess.run(
+        ["unshare", "-m", "sh", "-c", command] if mount else ["sh", "-c", command],
+        cwd=cwd, capture_output=True, text=True, timeout=600,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "src"), **(env or {})},
+    )  # fmt: skip
+
+
+@needs_mount
+def test_a_read_only_results_folder_is_one_line_before_any_work(tmp_path) -> None:
+    disk = tmp_path / "ro"
+    disk.mkdir()
+    result = _edr_run("task=representation_demo", "debug=tiny", cwd=tmp_path,
+                      mount=f"mount -t tmpfs -o ro,size=64k tmpfs {disk}",
+                      env={"EDR_RESULTS": str(disk / "results")})  # fmt: skip
+    assert result.returncode == 2, result.stderr[-3000:]
+    assert result.stderr.count("\n") == 0 or result.stderr.strip().count("\n") == 0
+    assert "cannot create the run folder" in result.stderr and "Read-only" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
+@needs_mount
+def test_a_full_disk_says_which_checkpoint_is_whole_in_one_line_and_records_the_failure(tmp_path):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    result = _edr_run("task=kth", "debug=tiny", f"task.cache_dir={tmp_path / 'cache'}",
+                      "task.logger=", f"out_dir={disk / 'run'}", cwd=tmp_path,
+                      mount=f"mount -t tmpfs -o size=1500k tmpfs {disk}",
+                      after=f"cp {disk / 'run' / 'run.json'} {tmp_path}")  # fmt: skip
+    said = result.stdout + result.stderr
+    assert result.returncode == 1, said[-3000:]
+    (line,) = [line for line in said.splitlines() if "could not write" in line]
+    assert "checkpoint.pt" in line and "is the previous one, whole" in line
+    assert "Traceback" not in said and "During handling" not in said
+    record = json.loads((tmp_path / "run.json").read_text())
+    assert record["status"] == "failed" and "checkpoint.pt" in record["error"]
+
+
+@needs_mount
+def test_the_last_record_is_written_on_a_disk_that_stays_full(tmp_path) -> None:
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = (
+        "import json, pathlib, sys\n"
+        "from edr.records import write_last_record, write_record\n"
+        f"out = pathlib.Path('{disk}')\n"
+        "record = {'status': 'running', 'config': {'x': 'y' * 3000}}\n"
+        "write_record(out, record)\n"
+        "with open(out / 'filler', 'wb', buffering=0) as f:\n"
+        "    try:\n"
+        "        while True: f.write(b'0' * 4096)\n"
+        "    except OSError: pass\n"
+        "record.update(status='failed', error='OSError: No space left on device')\n"
+        "assert write_last_record(out, record) is None\n"
+        "print(json.loads((out / 'run.json').read_text())['status'])\n"
+    )
+    result = subprocess.run(
+        ["unshare", "-m", "sh", "-c",
+         f"mount -t tmpfs -o size=256k tmpfs {disk} && exec {sys.executable} -c \"$0\"", script],
+        capture_output=True, text=True, timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.strip() == "failed"
+
+
+@pytest.mark.parametrize("checkpoint", [False, True])
+@pytest.mark.parametrize("resume", ["auto", "false"])
+def test_a_folder_of_runs_is_refused_as_a_run_folder(checkpoint, resume, compose_config, tmp_path):
+    from edr.run import run
+    from edr.validate import ConfigError
+
+    runs = tmp_path / "runs"
+    nested = _write(runs / "kth" / "one", _record())
+    if checkpoint:
+        (nested / "checkpoint.pt").write_bytes(b"not for this run")
+    cfg = compose_config("task=kth", "debug=tiny", f"out_dir={runs}", f"resume={resume}",
+                         f"task.cache_dir={tmp_path / 'cache'}")  # fmt: skip
+    with pytest.raises(ConfigError, match=r"holds other runs .*one/run\.json.*choose another"):
+        run(cfg)
+    assert not (runs / "run.json").exists() and not (tmp_path / "cache").exists()
+
+
+def test_a_finished_record_without_metrics_is_one_line(compose_config, tmp_path) -> None:
+    from edr.identity import run_identity
+    from edr.run import run
+    from edr.validate import ConfigError
+
+    cfg = compose_config("task=kth", "debug=tiny", f"out_dir={tmp_path / 'run'}",
+                         f"task.cache_dir={tmp_path / 'cache'}")  # fmt: skip
+    _, fingerprint, cell = run_identity(cfg)
+    _write(tmp_path / "run", {"status": "finished", "fingerprint": fingerprint, "cell": cell})
+    with pytest.raises(ConfigError, match="says finished but holds no metrics: pass resume=false"):
+        run(cfg)
+
+
+@pytest.mark.parametrize("variable", ["EDR_RESULTS", "EDR_CACHE"])
+def test_an_empty_results_variable_is_not_the_current_folder(variable, monkeypatch, tmp_path):
+    from conftest import _compose
+
+    monkeypatch.setenv(variable, "")
+    monkeypatch.chdir(tmp_path)
+    cfg = _compose("task=kth", "debug=tiny")
+    assert Path(cfg.paths.results) == tmp_path / "results"
+    assert Path(cfg.paths.cache) == tmp_path / "results" / "cache"
+
+
+@pytest.mark.slow
+def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(tmp_path) -> None:
+    result = _edr_run("-m", "task=representation_demo", "debug=tiny", "seed=0,-1",
+                      f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=tmp_path)  # fmt: skip
+    output = result.stdout + result.stderr
+    assert result.returncode == 1, output[-3000:]
+    assert "Traceback" not in output
+    assert "seed=-1: expected a number >= 0" in output
+    last = result.stdout.strip().splitlines()[-1]  # the log's last line
+    assert "1 ran, 0 failed, 0 interrupted, 1 refused" in last, last

@@ -31,7 +31,7 @@ from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from edr import CONF_DIR
-from edr.checkpoints import UnreadableCheckpoint
+from edr.checkpoints import UnreadableCheckpoint, WriteStopped
 from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.records import (
     UnreadableRecord,
@@ -237,7 +237,7 @@ def main(cfg: DictConfig) -> None:
             raise SystemExit(2) from None
         refused_cells.append(str(error))
     except OSError as error:
-        if error.errno not in DISK_ERRORS and not _in_sweep():
+        if not (isinstance(error, WriteStopped) or error.errno in DISK_ERRORS or _in_sweep()):
             raise
         log.error("failed: %s", " ".join(str(error).split()))
         if not _in_sweep():
