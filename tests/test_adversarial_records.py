@@ -16,12 +16,14 @@ from typing import Any
 
 import pytest
 
+import edr
 from edr import tables
 from edr.rebuild import UntrustedRecord
 from edr.report.runs import load_runs
 from edr.tasks.atari import evaluate_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
+SRC = str(Path(edr.__file__).resolve().parents[1])  # the edr these tests import, for subprocesses
 
 
 # ---- tiny records -------------------------------------------------------------------------------
@@ -214,7 +216,7 @@ def test_no_module_a_record_names_is_imported_without_trust(form, tmp_path) -> N
     result = subprocess.run(
         [sys.executable, "-m", "edr.tasks.atari", str(run_dir)], cwd=tmp_path,
         capture_output=True, text=True, timeout=120,
-        env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+        env={**os.environ, "PYTHONPATH": SRC},
     )  # fmt: skip
     assert result.returncode == 2, result.stderr[-2000:]
     assert "pwn_mod" in result.stderr and "--trust-env-module" in result.stderr
@@ -322,7 +324,7 @@ def _edr_run(
     return subprocess.run(
         ["unshare", "-m", "sh", "-c", command] if mount else ["sh", "-c", command],
         cwd=cwd, capture_output=True, text=True, timeout=600,
-        env={**os.environ, "PYTHONPATH": str(ROOT / "src"), **(env or {})},
+        env={**os.environ, "PYTHONPATH": SRC, **(env or {})},
     )  # fmt: skip
 
 
@@ -379,7 +381,7 @@ def test_the_last_record_is_written_on_a_disk_that_stays_full(tmp_path) -> None:
         ["unshare", "-m", "sh", "-c",
          f"mount -t tmpfs -o size=256k tmpfs {disk} && exec {sys.executable} -c \"$0\"", script],
         capture_output=True, text=True, timeout=120,
-        env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
+        env={**os.environ, "PYTHONPATH": SRC},
     )  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     assert result.stdout.strip() == "failed"
