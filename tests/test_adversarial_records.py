@@ -438,3 +438,22 @@ def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(tmp_path) -> Non
     assert "seed=-1: expected a number >= 0" in output
     last = result.stdout.strip().splitlines()[-1]  # the log's last line
     assert "1 ran, 0 failed, 0 interrupted, 1 refused" in last, last
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[1, 2]", "holds list, not a run record"),
+        ('{"seed": 0}', "has no config.task to rebuild the run from"),
+        ('{"seed": 0, "config": {"task": "edr.tasks.atari.train_paac"}}', "has no config.task"),
+        ('{"seed": 0, "config": [1]}', "has no config.task"),
+    ],
+)
+def test_a_checkpoint_evaluation_of_a_malformed_record_is_one_line(text, message, tmp_path):
+    from edr.records import UnreadableRecord
+
+    run_dir = _write(tmp_path / "run", None, text)
+    (run_dir / "checkpoint.pt").write_bytes(b"")
+    with pytest.raises(UnreadableRecord, match=message) as caught:
+        evaluate_checkpoint(run_dir)
+    assert "\n" not in str(caught.value)
