@@ -14,6 +14,7 @@ Every attempt appends one line to ``attempts.jsonl`` in the folder; at the end o
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -270,6 +271,8 @@ class RunFolder(Callback):
         folder = Path(config.hydra[kind].dir)
         try:
             folder.mkdir(parents=True, exist_ok=True)
+            if not os.access(folder, os.W_OK):  # there, but not this user's to write
+                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(folder))
         except OSError as error:
             print(
                 f"edr-run: cannot create the {kind} folder {folder}: {error.strerror} "
