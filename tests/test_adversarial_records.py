@@ -200,7 +200,9 @@ def _atari_record(tmp_path: Path, env: dict[str, Any]) -> Path:
         "config": {"task": {
             "_target_": "edr.tasks.atari.train_paac", "_partial_": True,
             "env": {"_target_": "edr.rl.settings.EnvSettings", "preset": "none", **env},
-        }},
+            "network": {"_target_": "edr.rl.settings.NetworkSettings"},
+            "evaluation": {"_target_": "edr.rl.settings.EvalSettings", "plays": 1},
+        }},  # complete: without the check, evaluating it would make the env
     }  # fmt: skip
     _write(run_dir, record)
     (run_dir / "checkpoint.pt").write_bytes(b"")
@@ -218,10 +220,10 @@ def test_no_module_a_record_names_is_imported_without_trust(form, tmp_path) -> N
         capture_output=True, text=True, timeout=120,
         env={**os.environ, "PYTHONPATH": SRC},
     )  # fmt: skip
+    assert not (tmp_path / "PWNED").exists()  # the module's code did not run
     assert result.returncode == 2, result.stderr[-2000:]
     assert "pwn_mod" in result.stderr and "--trust-env-module" in result.stderr
     assert result.stderr.count("\n") == 1
-    assert not (tmp_path / "PWNED").exists()
 
 
 def test_the_trust_check_comes_before_any_env_is_made(tmp_path, monkeypatch) -> None:
@@ -277,7 +279,8 @@ def test_the_committed_scope_renders_into_paper_and_nothing_else(tmp_path, monke
         (["--runs", "{tmp}/empty", "--out", "{tmp}/out"], "no records found under {tmp}/empty"),
     ],
 )
-def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, capsys) -> None:
+def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # paper/, if anything wrote there, is this test's
     _write(tmp_path / "runs" / "good", _record())
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit) as exit_:
@@ -285,6 +288,7 @@ def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, capsys) ->
     error = capsys.readouterr().err
     assert exit_.value.code == 2 and message.format(tmp=tmp_path) in error
     assert error.count("\n") == 1 and not (tmp_path / "out").exists()
+    assert not (tmp_path / "paper").exists()
 
 
 def test_a_record_lacking_the_fields_a_table_groups_by_is_listed_not_a_nan_row(tmp_path) -> None:
