@@ -130,9 +130,16 @@ def _existing_dir_problem(path: Any) -> str | None:
     )
 
 
+def _existing_file_problem(path: Any) -> str | None:
+    return _path_problem(path) or (
+        None if Path(str(path)).expanduser().is_file() else "an existing file"
+    )
+
+
 FilePath = Annotated[str, Check(_path_problem)]  # a file or folder a task reads or writes
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
 ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
+ExistingFile = Annotated[str, Check(_existing_file_problem)]  # a file a task reads
 
 
 def _device_problem(name: Any) -> str | None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from edr.models.paac import Core, Init
+from edr.models.paac import Core, Init, InputNorm
 from edr.representations import EDR
 from edr.rl.envs import Backend, Preset
 from edr.rl.optim import OptimizerName
@@ -49,6 +49,14 @@ class EnvSettings:
         """The game's name, or the user's env id."""
         return self.env_id or self.game
 
+    @property
+    def modules(self) -> tuple[str, ...]:
+        """Every module that making these envs imports, and so runs: ``env_module``, and the
+        ``module`` of an id in gymnasium's ``module:Env-v0`` form (``gym.make`` imports it)."""
+        ids = [i for i in (self.env_id, self.game) if isinstance(i, str) and ":" in i]
+        named = (self.env_module, *(i.split(":")[0] for i in ids))
+        return tuple(dict.fromkeys(m for m in named if m))
+
     def resolved_backend(self) -> Backend:
         """``auto``: EnvPool steps ALE games; a gymnasium env of your own runs serially."""
         if self.backend != "auto":
@@ -60,8 +68,9 @@ class EnvSettings:
 class NetworkSettings:
     """The actor-critic network after the conv trunk."""
 
-    core: Core = "ftlstm"  # ftlstm (the paper's), lstm, or none (feed-forward PAAC)
+    core: Core = "ftlstm"  # ftlstm (the paper's), lstm, none (feed-forward PAAC), lenet_ftlstm
     init: Init = "fan_in"  # fan_in (PAAC's TensorFlow code) or orthogonal (OpenAI's A2C)
+    input_norm: InputNorm = "raw"  # raw, centred (minus 0.5) or batchnorm frames
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
     DATA_FINGERPRINT,
+    UnreadableCheckpoint,
     check_same_data,
     load_checkpoint,
     restore,
@@ -39,11 +40,12 @@ from edr.checkpoints import (
 from edr.models.dead_units import DeadUnits
 from edr.models.paac import PAACNetwork
 from edr.rebuild import UntrustedRecord, instantiate_from_record
-from edr.records import read_record
+from edr.records import UnreadableRecord, read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.loss import n_step_returns, paac_loss
 from edr.rl.optim import make_optimizer
+from edr.rl.phases import PhaseClock
 from edr.rl.rollout import Actor, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
@@ -53,6 +55,7 @@ from edr.rl.settings import (
     NetworkSettings,
     OptimSettings,
 )
+from edr.rl.transform import ObservationFrame
 from edr.tasks.divergence import divergence
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
@@ -93,7 +96,7 @@ def train_paac(
     critic's mean value, the fraction of dead units per ReLU layer on the latest rollout, and
     the mean score of the last 20 training episodes.
     """
-    _check_env(env)
+    _check_env(env, network)
     backend = env.resolved_backend()
     # ---- envs, network, optimizer ------------------------------------------------------------
     env_kwargs = _env_kwargs(env)
@@ -103,7 +106,11 @@ def train_paac(
         frame_ring=observations_held(loss.rollout_steps, env.frame_stack), **env_kwargs,
     )  # fmt: skip
     envs.set_seed(seed)
-    actor = Actor(envs, net, env.frame_stack)
+    clock = PhaseClock()  # where each update's time goes, into the history
+    for transform in envs.transform:  # the observation's transform, where it runs in-process
+        if isinstance(transform, ObservationFrame):
+            transform.clock = clock
+    actor = Actor(envs, net, env.frame_stack, clock)
     dead_units = DeadUnits(net)
     opt = make_optimizer(
         optim.name,
@@ -158,35 +165,35 @@ def train_paac(
         bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
 
     diverged: dict[str, Any] = {}  # where training stopped being numbers, if it did
+    clock.lap()  # the first row's times start with the loop, not with the envs' set-up
     try:
         update = 0
         while steps_done < env_steps:
             update += 1
             dead_units.reset()
-            collect_start = time.perf_counter()
             try:
                 rollout = actor.rollout(loss.rollout_steps)  # the envs' steps, forward passes
             except FloatingPointError as error:  # the network's outputs stopped being numbers
                 diverged = _diverged(steps_done, update, str(error))
                 break
-            update_start = time.perf_counter()
-            returns = n_step_returns(
-                rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
-            )
-            total, loss_parts = paac_loss(
-                rollout.logits, rollout.values, rollout.actions, returns,
-                loss.entropy_coeff, loss.critic_coeff, loss.scale,
-            )  # fmt: skip
-            if reason := divergence(net, total):
-                diverged = _diverged(steps_done, update, reason)
-                break
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
-            updating = True
-            opt.step()
-            schedule.step()
-            update_end = time.perf_counter()
+            with clock.phase("backward"):  # the loss and its gradient
+                returns = n_step_returns(
+                    rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
+                )
+                total, loss_parts = paac_loss(
+                    rollout.logits, rollout.values, rollout.actions, returns,
+                    loss.entropy_coeff, loss.critic_coeff, loss.scale,
+                )  # fmt: skip
+                if reason := divergence(net, total):
+                    diverged = _diverged(steps_done, update, reason)
+                    break
+                opt.zero_grad(set_to_none=True)
+                total.backward()
+            with clock.phase("optimizer"):
+                grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
+                updating = True
+                opt.step()
+                schedule.step()
             steps_done += rollout.env_steps
             updating = False
             recent.extend(rollout.scores)
@@ -197,8 +204,8 @@ def train_paac(
             window.append({
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
-                "time/collect_ms": 1e3 * (update_start - collect_start),  # env steps + forward
-                "time/update_ms": 1e3 * (update_end - update_start),  # loss, backward, step
+                "train/logit_spread": _logit_spread(rollout.logits),
+                **clock.lap(),  # time/env_ms, observation, forward, backward, optimizer, other
                 **_prefixed(losses),
             })  # fmt: skip
             bar.update(rollout.env_steps)
@@ -251,8 +258,13 @@ def _diverged(env_steps: int, update: int, reason: str) -> dict[str, Any]:
             "train/diverged_reason": reason}  # fmt: skip
 
 
-def _check_env(env: EnvSettings) -> None:
+def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
     """One line for a setting that cannot work, before any env starts."""
+    if network.core == "lenet_ftlstm" and env.frame_stack != 1:
+        raise ConfigError(
+            "task.network.core=lenet_ftlstm reads one frame per step (its LSTM holds the past): "
+            f"add task.env.frame_stack=1 (got {env.frame_stack})"
+        )
     if env.inputs != "fdr" and not isinstance(env.edr, EDR):
         raise ConfigError(
             f"task.env.inputs={env.inputs} computes EDR events on the fly from the representation "
@@ -276,6 +288,12 @@ def _check_env(env: EnvSettings) -> None:
             "task.env.backend=envpool plays ALE games only: your env needs backend auto, serial "
             "or parallel"
         )
+
+
+def _logit_spread(logits: torch.Tensor) -> float:
+    """How much the policy tells states apart: the logits' std across the rollout's states
+    (N*T of them), averaged over actions. Near 0 while the policy ignores what it sees."""
+    return float(logits.detach().reshape(-1, logits.shape[-1]).std(0).mean())  # (N*T, A) -> ()
 
 
 def _prefixed(losses: dict[str, float]) -> dict[str, float]:
@@ -321,6 +339,8 @@ def _network(
         "num_actions": actions,
         "core": network.core,
         "init": network.init,
+        "input_norm": network.input_norm,
+        "frames": frame_stack,
     }
     return PAACNetwork(**arguments), arguments
 
@@ -377,7 +397,8 @@ def evaluate_checkpoint(
     ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
     (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
     the metrics. The record builds only the suite's own parts (:mod:`edr.rebuild`), and a
-    module it names (``task.env.env_module``) is imported only with ``trust_env_module``.
+    module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is
+    imported only with ``trust_env_module``.
     """
     run_dir = Path(run_dir)
     record = read_record(run_dir / "run.json")
@@ -386,13 +407,18 @@ def evaluate_checkpoint(
             f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
             "updates and where Ctrl-C or SIGTERM stops it"
         )
+    node = record.get("config", {})
+    if not isinstance(node, dict) or not isinstance(node.get("task"), dict):
+        raise UnreadableRecord(f"{run_dir / 'run.json'} has no config.task to rebuild the run from")
     # train_paac's arguments, EDR built
-    task = instantiate_from_record(record["config"]["task"], "config.task").keywords
+    task = instantiate_from_record(node["task"], "config.task").keywords
     env = task["env"]
-    if env.env_module is not None and not trust_env_module:
+    if env.modules and not trust_env_module:
         raise UntrustedRecord(
-            f"{run_dir / 'run.json'} names task.env.env_module={env.env_module}: importing it "
-            "runs its code; pass --trust-env-module (trust_env_module=True) if you trust it"
+            f"{run_dir / 'run.json'} names the module {', '.join(env.modules)} (task.env: "
+            f"env_module={env.env_module}, env_id={env.env_id}, game={env.game}): making its env "
+            "imports it, which runs its code; pass --trust-env-module (trust_env_module=True) "
+            "if you trust it"
         )
     evaluation = task["evaluation"]
     env_kwargs = _env_kwargs(env)
@@ -426,6 +452,6 @@ if __name__ == "__main__":
     args = parser.parse_args()
     try:
         metrics = evaluate_checkpoint(args.run_dir, args.plays, args.trust_env_module)
-    except (UntrustedRecord, FileNotFoundError) as error:
+    except (UntrustedRecord, UnreadableRecord, UnreadableCheckpoint, FileNotFoundError) as error:
         parser.exit(2, f"{parser.prog}: {error}\n")
     print(json.dumps(metrics, indent=1))
