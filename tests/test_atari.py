@@ -227,3 +227,23 @@ def test_the_first_convolution_stays_alive_on_pong(compose_config, tmp_path) -> 
             dead.append(metrics["dead/trunk.1"])
     assert max(dead) <= 6 / 16, dead  # no run lost more than 6 of its 16 units
     assert np.mean(dead) <= 1 / 4, dead
+
+
+def test_the_screening_table_reads_scores_and_first_steps_from_a_history(tmp_path) -> None:
+    import pandas as pd
+
+    from edr.report.screening import screening_rows
+
+    history = [{"env_steps": s, "train/score": score, "train/entropy": 1.7}
+               for s, score in [(100_000, -20.5), (300_000, -14.0), (600_000, 0.5)]]  # fmt: skip
+    (tmp_path / "history.json").write_text(json.dumps(history))
+    runs = pd.DataFrame([{
+        "record": str(tmp_path / "run.json"), "task": "atari", "seed": 0, "status": "finished",
+        "config.task.network.core": "none", "config.task.optim.name": "adam",
+        "config.task.optim.lr": 7e-4, "config.task.env.inputs": "fdr",
+    }])  # fmt: skip
+    row = screening_rows(runs).iloc[0]
+    assert row["Steps to -15"] == "0.30M" and row["Steps to 0"] == "0.60M"
+    assert row["Score @0.25M"] == -20.5 and row["Score @0.5M"] == -14.0
+    assert np.isnan(row["Score @1M"])  # the run did not get that far
+    assert row["Optimizer"] == "adam 0.0007"
