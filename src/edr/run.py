@@ -12,7 +12,6 @@ from __future__ import annotations
 import inspect
 import logging
 import random
-import signal
 import sys
 import time
 from pathlib import Path
@@ -27,8 +26,9 @@ from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from edr import CONF_DIR
-from edr.checkpoints import UnreadableCheckpoint
+from edr import CONF_DIR, interrupts
+from edr.atomic import remove_partial_files
+from edr.checkpoints import UnreadableCheckpoint, progress
 from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.records import UnreadableRecord, check_flat, git_revision, machine_info, now, write_record
 from edr.report.published import load_published, lookup
@@ -88,6 +88,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     except OSError as error:
         raise ConfigError(f"cannot create the run folder {out_dir}: {error.strerror}") from None
     with hold_folder(out_dir):
+        remove_partial_files(out_dir)  # left by a writer killed mid-write (SIGKILL, power)
         return _run_held(cfg, out_dir)
 
 
@@ -151,6 +152,8 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
             wall_time_s=round(time.perf_counter() - started, 3),
             ended_at=now(),
         )
+        if interrupted:  # what the next attempt continues from (None: it starts over)
+            record["resumes_from"] = progress(out_dir)
         write_record(out_dir, record)
         log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
         raise
@@ -209,19 +212,11 @@ def main(cfg: DictConfig) -> None:
         raise SystemExit(2) from None
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, a scheduler's preemption or time limit), ended as Ctrl-C is: the run's
-    record says ``interrupted`` and the next attempt resumes from its checkpoint."""
-
-
-def _terminate(signum: int, frame: Any) -> None:
-    raise Terminated(signal.Signals(signum).name)
-
-
 def cli() -> None:
     """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
-    of a trace (exit status 130 or 143, as the shell reports those signals)."""
-    signal.signal(signal.SIGTERM, _terminate)
+    of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
+    (:mod:`edr.interrupts`)."""
+    interrupts.install()
     try:
         main()
     except ValueError as error:  # Hydra could not open the run's log file: a folder not writable
@@ -240,7 +235,7 @@ def cli() -> None:
             "(finished runs are skipped, interrupted ones continue from their checkpoints)",
             file=sys.stderr,
         )
-        raise SystemExit(143 if isinstance(error, Terminated) else 130) from None
+        raise SystemExit(143 if isinstance(error, interrupts.Terminated) else 130) from None
 
 
 if __name__ == "__main__":

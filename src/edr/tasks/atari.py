@@ -26,6 +26,7 @@ import torch
 from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
+from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
@@ -153,6 +154,7 @@ def train_paac(
         update = 0
         while steps_done < env_steps:
             update += 1
+            interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
             dead_units.reset()
             collect_start = time.perf_counter()
             rollout = actor.rollout(loss.rollout_steps)  # the envs' steps and the forward passes

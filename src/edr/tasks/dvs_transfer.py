@@ -18,6 +18,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
@@ -163,6 +164,7 @@ def dvs_transfer(
         backbone.train()
         order = torch.randperm(len(train_x))
         for i in range(0, len(order), batch_size):
+            interrupts.raise_if_stopping()
             batch = order[i : i + batch_size]
             loss = loss_fn(backbone(train_x[batch]), train_y[batch])
             opt.zero_grad(set_to_none=True)

@@ -1,0 +1,116 @@
+"""What a new user meets first: Ctrl-C that stops training, typos refused in one line, summaries
+that compare like with like, figures a person can read, docs true to the tree."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from edr import interrupts
+from edr.representations.buffers import Recycler
+from edr.run import run
+from edr.tasks import recognition
+
+EDR_RUN = str(Path(sys.executable).parent / "edr-run")
+
+
+# ---- 1. Ctrl-C and SIGTERM -------------------------------------------------------------------
+
+
+def test_a_recycled_output_dies_without_running_python_code() -> None:
+    """A signal raises only where Python code runs: none runs when an output dies, so none can
+    be dropped there as "Exception ignored in <finalize object>"."""
+    pool = Recycler(min_bytes=1024)
+    out = pool.empty((64, 64))
+    python_calls = []
+    sys.setprofile(
+        lambda frame, event, arg: python_calls.append(event) if event == "call" else None
+    )
+    try:
+        del out
+    finally:
+        sys.setprofile(None)
+    assert python_calls == []
+    assert pool.free_bytes == 64 * 64 * 4  # and its memory is held for the next call
+
+
+def test_an_interrupt_dropped_in_a_callback_stops_at_the_next_step(
+    compose_config, tmp_path, monkeypatch
+) -> None:
+    """A signal whose exception some ``__del__`` dropped still stops training at the next batch;
+    the record names what the next attempt continues from, and that attempt finishes."""
+    cache = tmp_path / "cache"
+    overrides = ("task=kth", "debug=tiny", f"task.cache_dir={cache}", "task.epochs=2")
+    real_evaluate = recognition.evaluate
+
+    def signal_dropped_after_epoch_one(*args, **kwargs):
+        result = real_evaluate(*args, **kwargs)
+        monkeypatch.setattr(interrupts._State, "first", signal.SIGTERM)  # raised, then dropped
+        return result
+
+    monkeypatch.setattr(recognition, "evaluate", signal_dropped_after_epoch_one)
+    out = tmp_path / "run"
+    with pytest.raises(interrupts.Terminated):
+        run(compose_config(*overrides, f"out_dir={out}"))
+    record = json.loads((out / "run.json").read_text())
+    assert record["status"] == "failed" and record["error"] == "interrupted"
+    assert record["resumes_from"] == {"checkpoint": "checkpoint.pt", "epoch": 1}
+
+    (out / ".confusion.k2j4.partial.png").write_bytes(b"half a png")  # a writer killed mid-write
+    monkeypatch.setattr(interrupts._State, "first", None)
+    monkeypatch.setattr(recognition, "evaluate", real_evaluate)
+    run(compose_config(*overrides, f"out_dir={out}"))
+    record = json.loads((out / "run.json").read_text())
+    assert record["status"] == "finished" and record["resumed"]
+    assert not [p.name for p in out.rglob("*partial*")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("sent", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_the_first_signal_stops_a_long_epoch_within_seconds(sent, status, tmp_path) -> None:
+    """An epoch far longer than the test's patience (a million clips), with outputs big enough to
+    be recycled: the first signal ends it within 10 s, a second one adds no traceback, and the
+    record says interrupted, with nothing to resume from but a start over."""
+    out = tmp_path / "run"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "EDR_CACHE": str(tmp_path / "cache")}
+    process = subprocess.Popen(
+        [EDR_RUN, "task=kth", "debug=tiny", "task.frames=16", "task.batch_size=64",
+         "task.clips_per_epoch=1000000", f"hydra.run.dir={out}"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as in a terminal
+    )  # fmt: skip
+    output: list[str] = []
+    threading.Thread(
+        target=lambda: output.extend(iter(process.stdout.readline, "")), daemon=True
+    ).start()
+    deadline = time.monotonic() + 300
+    while not any("epoch 1/2" in line for line in output):
+        assert process.poll() is None, "".join(output)[-3000:]
+        assert time.monotonic() < deadline, "training never started"
+        time.sleep(0.1)
+    time.sleep(3)  # inside the epoch's first batches
+    process.send_signal(sent)
+    sent_at = time.monotonic()
+    time.sleep(0.5)
+    if process.poll() is None:
+        process.send_signal(sent)  # an impatient second Ctrl-C
+    process.wait(timeout=60)
+    assert time.monotonic() - sent_at < 10, "the run did not stop within 10 s"
+    time.sleep(0.2)  # the reader's last lines
+    text = "".join(output).replace("\r", "\n")
+    # 130 / 143; or killed by the second signal once Python, shutting down, restored its default
+    assert process.returncode in (status, 128 - status), text[-3000:]
+    assert "Traceback" not in text and "Exception ignored" not in text, text[-3000:]
+    assert text.rstrip().splitlines()[-1].startswith("interrupted: run the same command again")
+    record = json.loads((out / "run.json").read_text())
+    assert record["status"] == "failed" and record["error"] == "interrupted"
+    assert record["resumes_from"] is None  # no epoch finished: the next attempt starts over
+    assert not (out / "run.lock").exists()
