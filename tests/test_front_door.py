@@ -114,3 +114,19 @@ def test_the_first_signal_stops_a_long_epoch_within_seconds(sent, status, tmp_pa
     assert record["status"] == "failed" and record["error"] == "interrupted"
     assert record["resumes_from"] is None  # no epoch finished: the next attempt starts over
     assert not (out / "run.lock").exists()
+
+
+# ---- 3. make demo: one seed, said so ---------------------------------------------------------
+
+
+def test_make_demo_prints_its_seed_beside_the_readmes_three_seed_line() -> None:
+    root = Path(__file__).resolve().parents[1]
+    commands = subprocess.run(
+        ["make", "-n", "demo"], cwd=root, capture_output=True, text=True, check=True
+    ).stdout
+    assert "experiment=kth_demo representation=edr,fdr seed=0 " in commands
+    said = " ".join(line for line in commands.splitlines() if line.startswith("echo"))
+    assert "ONE seed (seed=0)" in said and "one seed is not the result" in said
+    three_seeds = "FDR 60.0 ± 25.2 % and EDR 56.7 ± 8.8 %, chance 16.7 %"
+    readme = " ".join((root / "README.md").read_text().split())
+    assert three_seeds in said and three_seeds in readme
