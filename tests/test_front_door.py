@@ -15,9 +15,11 @@ from pathlib import Path
 import pytest
 
 from edr import interrupts
+from edr.overrides import check_command_line
 from edr.representations.buffers import Recycler
-from edr.run import run
+from edr.run import CONF_DIR, ENTRY_KEYS, run
 from edr.tasks import recognition
+from edr.validate import ConfigError, check_config
 
 EDR_RUN = str(Path(sys.executable).parent / "edr-run")
 
@@ -130,3 +132,61 @@ def test_make_demo_prints_its_seed_beside_the_readmes_three_seed_line() -> None:
     three_seeds = "FDR 60.0 ± 25.2 % and EDR 56.7 ± 8.8 %, chance 16.7 %"
     readme = " ".join((root / "README.md").read_text().split())
     assert three_seeds in said and three_seeds in readme
+
+
+# ---- 4. typos: one line, the nearest real key --------------------------------------------------
+
+
+def _check_line(*argv: str) -> None:
+    check_command_line(argv, CONF_DIR, lambda cfg: check_config(cfg, entry=ENTRY_KEYS))
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["representaton=edr"], "did you mean representation=edr?"),
+        (["+representaton=edr"], "did you mean representation=edr?"),
+        (["+sead=3"], "did you mean seed=3?"),
+        (["sead=3"], "did you mean seed=3?"),
+        (
+            ["task=kth", "task.epoch=3"],
+            "no such key epoch in task=kth; did you mean task.epochs=3?",
+        ),
+        (["task=kth", "+task.epochs=3"], "epochs is a key already in task=kth"),
+        (["task.epochs=abc"], "no such key epochs in task=representation_demo (the default"),
+        (["task=kth", "task.epochs=abc"], "task.epochs='abc': expected an integer"),
+        (["+task.new_key=1"], "takes no argument new_key"),
+        (["+representation.parameterizaton=log"], "+representation.parameterization=log?"),
+        (["-m", "task=kth", "representation=edr,fdrr"], "representation=fdrr: no such option"),
+    ],
+)
+def test_a_typo_is_refused_in_one_line_naming_the_nearest_key(argv, said) -> None:
+    with pytest.raises(ConfigError) as refused:
+        _check_line(*argv)
+    assert said in str(refused.value) and "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["+representation.parameterization=bounded"],  # conf/representation/edr.yaml documents
+        ["+representation.bptt_window=10"],  # these two additions
+        ["task=kth", "++task.epochs=3"],
+        ["-m", "experiment=table4_kth", "debug=tiny"],
+        ["task=atari", "game=breakout", "task.env.inputs=fdr", "debug=tiny"],
+        ["hydra/launcher=parallel", "task=kth", "hydra.sweep.dir=/tmp/x"],
+    ],
+)
+def test_documented_overrides_still_pass(argv) -> None:
+    _check_line(*argv)
+
+
+@pytest.mark.slow
+def test_a_typo_leaves_no_run_folder(cli, tmp_path) -> None:
+    result = cli("edr-run", "+representaton=edr", cwd=tmp_path, env={"EDR_RESULTS": str(tmp_path)})
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "edr-run: +representaton=edr: no such key representaton, and only an object's argument "
+        "can be added; did you mean representation=edr?"
+    ]
+    assert not list(tmp_path.rglob("run.log"))

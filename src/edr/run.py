@@ -30,6 +30,7 @@ from edr import CONF_DIR, interrupts
 from edr.atomic import remove_partial_files
 from edr.checkpoints import UnreadableCheckpoint, progress
 from edr.identity import job_dirname, run_identity, warn_ignored
+from edr.overrides import check_command_line
 from edr.records import UnreadableRecord, check_flat, git_revision, machine_info, now, write_record
 from edr.report.published import load_published, lookup
 from edr.store import Resume, hold_folder, log_attempt, plan_attempt
@@ -217,6 +218,11 @@ def cli() -> None:
     of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
     (:mod:`edr.interrupts`)."""
     interrupts.install()
+    try:  # a typo or a bad value: one line, before Hydra makes a run folder
+        check_command_line(sys.argv[1:], CONF_DIR, lambda cfg: check_config(cfg, entry=ENTRY_KEYS))
+    except (ConfigError, UnreadableRecord) as error:
+        print(f"edr-run: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
     try:
         main()
     except ValueError as error:  # Hydra could not open the run's log file: a folder not writable
