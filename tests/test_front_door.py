@@ -12,6 +12,8 @@ import threading
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from edr import interrupts
@@ -190,3 +192,44 @@ def test_a_typo_leaves_no_run_folder(cli, tmp_path) -> None:
         "can be added; did you mean representation=edr?"
     ]
     assert not list(tmp_path.rglob("run.log"))
+
+
+# ---- 7, 8. sweeps: one run per fingerprint; a refused cell, then the summary line ---------------
+
+
+@pytest.mark.slow
+def test_a_swept_group_the_task_does_not_read_runs_once(cli, tmp_path) -> None:
+    """The demo task draws every representation: representation=edr,edr_k3 is one cell."""
+    result = cli(
+        "edr-run", "-m", "representation=edr,edr_k3", "debug=tiny", f"hydra.sweep.dir={tmp_path}",
+        cwd=tmp_path,
+    )  # fmt: skip
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    assert f"sweep {tmp_path}: 0 skipped, 0 resumed, 1 ran, 0 failed" in output
+    assert len(list(tmp_path.glob("*/run.json"))) == 1
+
+
+def test_a_missing_video_is_refused_before_a_run_folder() -> None:
+    with pytest.raises(ConfigError, match=r"task.video='/no/clip.avi': expected an existing file"):
+        _check_line("task=event_camera", "task.video=/no/clip.avi")
+
+
+@pytest.mark.slow
+def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(cli, tmp_path) -> None:
+    video = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (64, 48))
+    for value in range(0, 240, 20):
+        writer.write(np.full((48, 64, 3), value, np.uint8))
+    writer.release()
+    sweep = tmp_path / "sweep"
+    result = cli(
+        "edr-run", "-m", "task=event_camera", "debug=tiny", f"task.video={video},/no/clip.avi",
+        f"hydra.sweep.dir={sweep}", cwd=tmp_path,
+    )  # fmt: skip
+    output = result.stdout + result.stderr
+    assert result.returncode == 2, output[-3000:]
+    assert "task.video='/no/clip.avi': expected an existing file" in output
+    assert "Traceback" not in output
+    last = result.stdout.strip().splitlines()[-1]
+    assert last.endswith(f"sweep {sweep}: 0 skipped, 0 resumed, 1 ran, 1 failed, 0 interrupted")

@@ -4,7 +4,7 @@ artifacts. Running the same command again skips a finished run and resumes an in
 
     edr-run                                   # the demo on a generated video
     edr-run task.video=clip.avi task.frames=120
-    edr-run -m representation=edr,edr_k3 seed=0,1
+    edr-run -m task=kth representation=edr,edr_k3 seed=0,1 debug=tiny
 """
 
 from __future__ import annotations
@@ -204,13 +204,21 @@ def _in_sweep() -> bool:
     return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
 
 
+class _Sweep:
+    refused = 0  # cells of this multirun refused by a check (the exit status says so)
+
+
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def main(cfg: DictConfig) -> None:
     try:
         run(cfg)
     except (ConfigError, UnreadableRecord, UnreadableCheckpoint) as error:  # one line, no trace
         log.error("%s", error)
-        raise SystemExit(2) from None
+        if not _in_sweep():
+            raise SystemExit(2) from None
+        # a sweep goes on to its next cell and ends with its summary line, counting this one
+        _Sweep.refused += 1
+        log_attempt(Path(cfg.out_dir), "failed", None, error=str(error))
 
 
 def cli() -> None:
@@ -225,6 +233,8 @@ def cli() -> None:
         raise SystemExit(2) from None
     try:
         main()
+        if _Sweep.refused:
+            raise SystemExit(2)
     except ValueError as error:  # Hydra could not open the run's log file: a folder not writable
         if "Unable to configure handler" not in str(error):
             raise

@@ -104,8 +104,13 @@ def _existing_dir_problem(path: Any) -> str | None:
     )
 
 
+def _existing_file_problem(path: Any) -> str | None:
+    return None if Path(str(path)).expanduser().is_file() else "an existing file"
+
+
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
 ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
+ExistingFile = Annotated[str, Check(_existing_file_problem)]  # a file a task reads
 
 
 def _game_problem(game: Any) -> str | None:

@@ -20,7 +20,7 @@ import torch
 
 from edr.data.synthetic import video_or_scene
 from edr.representations import FDR, Representation
-from edr.validate import PositiveFloat, PositiveInt
+from edr.validate import ExistingFile, PositiveFloat, PositiveInt
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ def event_camera(
     out_dir: Path,
     seed: int,
     representations: dict[str, Representation],
-    video: str | None = None,
+    video: ExistingFile | None = None,
     frames: PositiveInt = 90,
     height: PositiveInt = 120,
     width: PositiveInt = 160,

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from edr.atomic import save_figure
 from edr.data.synthetic import video_or_scene
 from edr.representations import Representation
-from edr.validate import PositiveInt
+from edr.validate import ExistingFile, PositiveInt
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +32,7 @@ def representation_demo(
     out_dir: Path,
     seed: int,
     representations: dict[str, Representation],
-    video: str | None = None,
+    video: ExistingFile | None = None,
     frames: PositiveInt = 48,
     height: PositiveInt = 120,
     width: PositiveInt = 160,
