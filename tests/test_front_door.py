@@ -233,3 +233,57 @@ def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(cli, tmp_path) -
     assert "Traceback" not in output
     last = result.stdout.strip().splitlines()[-1]
     assert last.endswith(f"sweep {sweep}: 0 skipped, 0 resumed, 1 ran, 1 failed, 0 interrupted")
+
+
+# ---- 10. the README true to the tree -------------------------------------------------------
+
+FLOORS = ("tasks", "rl", "models", "representations", "data")  # top down
+ENTRY_POINTS = {"run", "tables", "bench", "bench_atari", "sweeps", "flow_accuracy"}
+ENTRY_POINTS |= {"edr_gradients", "__init__", "report"}
+TASKS_HELPERS = {"rebuild": "representations"}  # the README names this one exception
+
+
+def _floor(module: str) -> int | None:
+    parts = module.split(".")
+    return FLOORS.index(parts[1]) if len(parts) > 1 and parts[1] in FLOORS else None
+
+
+def test_no_import_runs_back_up_a_floor() -> None:
+    import ast
+
+    package = Path(__file__).resolve().parents[1] / "src" / "edr"
+    upward = []
+    for path in package.rglob("*.py"):
+        top = path.relative_to(package).parts[0].removesuffix(".py")
+        if top in ENTRY_POINTS or top == "conf":
+            continue
+        mine = FLOORS.index(top) if top in FLOORS else len(FLOORS)  # below data/: the rest
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("edr."):
+                floor = _floor(node.module)
+                if floor is not None and floor < mine and FLOORS[floor] != TASKS_HELPERS.get(top):
+                    upward.append(f"{path.relative_to(package)} imports {node.module}")
+    assert upward == []
+
+
+def test_the_readme_layout_names_every_module_and_top_level_folder() -> None:
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    package = root / "src" / "edr"
+    missing = [
+        str(p.relative_to(package))
+        for p in package.rglob("*.py")
+        if p.name != "__init__.py" and p.stem not in readme and "conf" not in p.parts
+    ]
+    missing += [p.name for p in root.iterdir() if p.name not in readme and p.name != ".git"
+                and not p.name.startswith((".venv", ".pytest", ".ruff", ".gitignore"))]  # fmt: skip
+    assert missing == []
+
+
+def test_edr_bench_writes_outside_the_committed_records_by_default(monkeypatch) -> None:
+    from edr.records import bench_dir
+
+    monkeypatch.delenv("EDR_RESULTS", raising=False)
+    assert bench_dir() == Path("results/runs/bench")  # results/runs/ is in .gitignore
+    gitignore = (Path(__file__).resolve().parents[1] / ".gitignore").read_text().split()
+    assert "results/runs/" in gitignore

@@ -204,12 +204,23 @@ def _in_sweep() -> bool:
     return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
 
 
+def main() -> None:
+    """The command line checked (a typo or a bad value: one line, before Hydra makes a run
+    folder), then Hydra's app."""
+    try:
+        check_command_line(sys.argv[1:], CONF_DIR, lambda cfg: check_config(cfg, entry=ENTRY_KEYS))
+    except ConfigError as error:
+        print(f"edr-run: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+    hydra_app()
+
+
 class _Sweep:
     refused = 0  # cells of this multirun refused by a check (the exit status says so)
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
-def main(cfg: DictConfig) -> None:
+def hydra_app(cfg: DictConfig) -> None:
     try:
         run(cfg)
     except (ConfigError, UnreadableRecord, UnreadableCheckpoint) as error:  # one line, no trace
@@ -226,11 +237,6 @@ def cli() -> None:
     of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
     (:mod:`edr.interrupts`)."""
     interrupts.install()
-    try:  # a typo or a bad value: one line, before Hydra makes a run folder
-        check_command_line(sys.argv[1:], CONF_DIR, lambda cfg: check_config(cfg, entry=ENTRY_KEYS))
-    except (ConfigError, UnreadableRecord) as error:
-        print(f"edr-run: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
     try:
         main()
         if _Sweep.refused:

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from edr.representations.dvs import EVENT_DTYPE
-
 RECORDING_SUFFIXES = (".npz", ".aedat")
+# One event: time (µs), position, polarity (1 ON, 0 OFF); the simulator (representations/dvs.py)
+# writes the same records.
+EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
 
 def _events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from numba import njit
 
+from edr.data.events import EVENT_DTYPE
 from edr.representations.base import (
     Features,
     Representation,
@@ -30,7 +31,6 @@ from edr.representations.base import (
 from edr.validate import NonNegativeFloat, PositiveFloat, check_arguments
 
 TILE_PIXELS = 1 << 18  # DVSCamera simulates this many pixels at a time (bounded memory)
-EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
 
 @njit(cache=True)
