@@ -19,7 +19,7 @@ import pytest
 from edr import interrupts
 from edr.overrides import check_command_line
 from edr.representations.buffers import Recycler
-from edr.run import CONF_DIR, ENTRY_KEYS, run
+from edr.run import CONF_DIR, ENTRY_KEYS, headline, run
 from edr.tasks import recognition
 from edr.validate import ConfigError, check_config
 
@@ -287,3 +287,28 @@ def test_edr_bench_writes_outside_the_committed_records_by_default(monkeypatch) 
     assert bench_dir() == Path("results/runs/bench")  # results/runs/ is in .gitignore
     gitignore = (Path(__file__).resolve().parents[1] / ".gitignore").read_text().split()
     assert "results/runs/" in gitignore
+
+
+# ---- 6. a capped Atari evaluation beside random play under the same cap -------------------------
+
+
+@pytest.mark.slow
+def test_a_tiny_atari_run_measures_random_play_under_its_own_cap(compose_config, tmp_path) -> None:
+    metrics = run(
+        compose_config(
+            "task=atari", "debug=tiny", "representation.color=gray", "task.env_steps=200",
+            f"out_dir={tmp_path}",
+        )
+    )  # fmt: skip
+    assert metrics["eval/max_steps"] == 100  # debug=tiny cuts the games at 100 agent steps
+    assert -100 <= metrics["eval/random_mean"] <= 100
+    said = headline({**metrics, "data/game": "Pong"})
+    assert (
+        f"random play {metrics['eval/random_mean']:+.1f} on the same games, also cut at 100" in said
+    )
+    assert "-20.7" not in said  # a whole game's published random play is not the yardstick
+
+
+def test_whole_games_stand_beside_the_published_random_play() -> None:
+    metrics = {"eval/mean": -19.0, "eval/plays": 30, "eval/min": -21, "eval/max": -15}
+    assert "random play -20.7" in headline({**metrics, "data/game": "Pong"})

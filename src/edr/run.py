@@ -180,9 +180,15 @@ def headline(metrics: dict[str, Any]) -> str:
         against = f" (chance {100 * chance:.1f} %)" if chance is not None else ""
         return f"accuracy {100 * metrics['eval/accuracy']:.1f} %{against}"
     if "eval/mean" in metrics:
-        game = metrics.get("data/game")
-        random_play = lookup(load_published(), "atari_reference_scores", game, "random")
-        against = f", random play {random_play:+g}" if random_play is not None else ""
+        if "eval/random_mean" in metrics:  # games cut short: random play under the same cap
+            against = (
+                f", random play {metrics['eval/random_mean']:+.1f} on the same games, "
+                f"also cut at {metrics['eval/max_steps']} steps"
+            )
+        else:
+            game = metrics.get("data/game")
+            random_play = lookup(load_published(), "atari_reference_scores", game, "random")
+            against = f", random play {random_play:+g}" if random_play is not None else ""
         return (
             f"mean score {metrics['eval/mean']:+.1f} over {metrics['eval/plays']} games "
             f"(min {metrics['eval/min']:+g}, max {metrics['eval/max']:+g}{against})"

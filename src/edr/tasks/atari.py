@@ -43,7 +43,7 @@ from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.loss import n_step_returns, paac_loss
 from edr.rl.optim import make_optimizer
-from edr.rl.rollout import Actor, observations_held
+from edr.rl.rollout import Actor, UniformPolicy, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
     EnvSettings,
@@ -205,6 +205,12 @@ def train_paac(
 
     # ---- evaluation --------------------------------------------------------------------------
     scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
+    # games cut short: random play under the same cap, on the same games, is the yardstick
+    random_scores = (
+        _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, env.frame_stack, backend, seed,
+                  evaluation)
+        if evaluation.capped else None
+    )  # fmt: skip
     save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
     scored = [row for row in history if "train/score" in row]
@@ -221,7 +227,15 @@ def train_paac(
         **_prefixed(losses),
         **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
         **_score_metrics(scores),
+        **_random_metrics(random_scores, evaluation),
     }
+
+
+def _random_metrics(scores: list[float] | None, evaluation: EvalSettings) -> dict[str, float]:
+    """Random play's mean under the evaluation's cap, when the run measured it."""
+    if scores is None:
+        return {}
+    return {"eval/random_mean": float(np.mean(scores)), "eval/max_steps": evaluation.max_steps}
 
 
 def _check_env(env: EnvSettings) -> None:
@@ -299,7 +313,7 @@ def _network(
 
 
 def _evaluate(
-    network: PAACNetwork, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend,
+    network: PAACNetwork | UniformPolicy, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend,
     seed: int, settings: EvalSettings,
 ) -> list[float]:  # fmt: skip
     """Raw scores of ``settings.plays`` whole games (no life loss, no clipping), played at once
