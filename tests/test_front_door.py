@@ -312,3 +312,48 @@ def test_a_tiny_atari_run_measures_random_play_under_its_own_cap(compose_config,
 def test_whole_games_stand_beside_the_published_random_play() -> None:
     metrics = {"eval/mean": -19.0, "eval/plays": 30, "eval/min": -21, "eval/max": -15}
     assert "random play -20.7" in headline({**metrics, "data/game": "Pong"})
+
+
+# ---- 9. figures a person can read --------------------------------------------------------------
+
+
+def _readable(png: Path) -> str | None:
+    """Why a figure is hard to read at a glance (a strip, a postage stamp, a wall), or None."""
+    from PIL import Image
+
+    with Image.open(png) as image:
+        width, height = image.size
+    if not (300 <= width <= 2400 and 250 <= height <= 2400):
+        return f"{png.name}: {width}x{height} px"
+    if not 1 / 3 <= width / height <= 4:
+        return f"{png.name}: aspect {width / height:.1f} ({width}x{height})"
+    return None
+
+
+@pytest.mark.slow
+def test_every_figure_rendered_from_the_committed_records_is_readable(tmp_path) -> None:
+    """The figures of results/learning/ (Figures 5, 6, 7b, 10, 11 and the learnable EDR's),
+    drawn into tmp_path: each PNG opens, with a size and aspect a page holds; Figure 6 is one
+    heat map per data set, not a strip."""
+    from edr.report.figures import fig6_ucf101_per_class
+    from edr.report.runs import load_runs
+    from edr.tables import render_all
+
+    learning = Path(__file__).resolve().parents[1] / "results" / "learning"
+    roots = [learning / name for name in ("table1_pong", "kth_demo", "dvs_transfer_demo",
+                                          "learnable_edr", "learnable_edr_real")]  # fmt: skip
+    published = Path(__file__).resolve().parents[1] / "src" / "edr" / "report" / "published.yaml"
+    render_all(roots, tmp_path / "no-bench", tmp_path, published)
+    pngs = sorted((tmp_path / "figures").glob("*.png"))
+    names = {p.stem for p in pngs}
+    assert {"figure5_atari_curves", "figure6_ucf101_per_class", "figure10_kth_curves",
+            "figure11_activation_sparsity"} <= names  # fmt: skip
+    assert [problem for p in pngs if (problem := _readable(p))] == []
+    figure = fig6_ucf101_per_class(load_runs(roots))[1]()
+    assert all(ax.get_images() for ax in figure.axes if ax.get_label() != "<colorbar>")
+
+
+def test_the_committed_figures_are_readable() -> None:
+    """paper/figures as committed (the coordinator regenerates them from the code)."""
+    figures = Path(__file__).resolve().parents[1] / "paper" / "figures"
+    assert [problem for p in sorted(figures.glob("*.png")) if (problem := _readable(p))] == []
