@@ -46,6 +46,7 @@ def test_a_recycled_output_dies_without_running_python_code() -> None:
     assert pool.free_bytes == 64 * 64 * 4  # and its memory is held for the next call
 
 
+@pytest.mark.slow
 def test_an_interrupt_dropped_in_a_callback_stops_at_the_next_step(
     compose_config, tmp_path, monkeypatch
 ) -> None:
