@@ -75,6 +75,8 @@ def check_command_line(
     args, _ = get_args_parser().parse_known_args(list(argv))
     if args.shell_completion or args.help or args.hydra_help or args.info:
         return
+    if args.config_name or args.config_path or args.config_dir:
+        return  # another config than ours: Hydra checks it
     try:
         parsed = OverridesParser.create().parse_overrides(args.overrides)
     except HydraException as error:
