@@ -15,7 +15,7 @@ $(BIN)/python:
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/pip install -q $(FIND) "$(TORCH)"
-	$(BIN)/pip install -q $(FIND) -e ".[dev]"
+	$(BIN)/pip install -q $(FIND) -e ".[dev,events]"
 	touch $@
 
 setup: $(VENV)/.installed
@@ -42,9 +42,11 @@ paper-tiny: setup
 
 # paper/ as committed: the largest-scale records there are, each folder's command in
 # results/learning/README.md (Table 1: the Pong runs; Table 4, the ablations, Appendix A and
-# the learnable EDR: make demo's size; Table 3: real videos; Table 2 and Figure 3b: the tiny
+# the learnable EDR: make demo's size; Table 3: real videos and ../shared/events' recordings;
+# Table 2 and Figure 3b: the tiny
 # sweeps; a folder not run yet is skipped), and the bench records.
-LEARNING   := table1_pong learnable_edr kth_demo dvs_transfer_demo learnable_edr_real event_camera_real
+LEARNING   := table1_pong learnable_edr kth_demo dvs_transfer_demo learnable_edr_real event_camera_real \
+              event_camera_recordings
 PAPER_RUNS := $(wildcard $(addprefix results/learning/,$(LEARNING))) results/sweeps/tiny/table2 results/sweeps/tiny/demo
 paper: setup
 	$(BIN)/python -m edr.sweeps results/sweeps/tiny  # skips the cells it ran before

@@ -58,6 +58,48 @@ def test_ft_lstm_recurrence_stays_within_channels() -> None:
     assert net.cell.recurrent.shape == (4, 32, 81, 81)  # (gate, channel, location, location)
 
 
+def test_the_authors_network_tracks_lenet_maps_one_frame_a_step() -> None:
+    net = PAACNetwork(5, 6, "lenet_ftlstm", init="fan_in")
+    assert net.cell.recurrent.shape == (4, 16, 324, 324)  # LeNet 6-16 on 84x84: 16 x 18x18 maps
+    assert net.embed[0].out_features == 512 and net.policy.in_features == 512
+    with pytest.raises(ValueError, match="one frame per step"):
+        PAACNetwork(20, 6, "lenet_ftlstm", frames=4)
+    settings = atari.NetworkSettings(core="lenet_ftlstm")
+    with pytest.raises(ConfigError, match=r"task\.env\.frame_stack=1"):
+        atari._check_env(atari.EnvSettings(inputs="fdr"), settings)
+
+
+@pytest.mark.parametrize("core", ["none", "ftlstm"])
+def test_input_normalisation_centres_or_batch_normalises_each_frame(core: str) -> None:
+    torch.manual_seed(0)
+    frames = [torch.rand(8, 5, 84, 84) for _ in range(4)]
+    state = torch.zeros(8, PAACNetwork(20, 6, core, frames=4).state_size)
+    first = torch.ones(8, 1, dtype=torch.bool)
+    raw = PAACNetwork(20, 6, core, frames=4)
+    centred = PAACNetwork(20, 6, core, input_norm="centred", frames=4)
+    centred.load_state_dict(raw.state_dict())
+    shifted = [f - 0.5 for f in frames]
+    torch.testing.assert_close(centred(frames, state, state, first)[0],
+                               raw(shifted, state, state, first)[0])  # fmt: skip
+    normed = PAACNetwork(20, 6, core, input_norm="batchnorm", frames=4)
+    assert normed.normalise.num_features == 5  # one frame's channels, shared by the 4 frames
+    scaled = [3 * f + 1 for f in frames]  # batch statistics take out any per-channel affine map
+    torch.testing.assert_close(normed(frames, state, state, first)[0],
+                               normed(scaled, state, state, first)[0], atol=1e-4, rtol=1e-4)  # fmt: skip
+
+
+def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -> None:
+    """Runs recorded before task.network.input_norm existed keep their identity; another
+    value is another run."""
+    from edr.identity import run_identity
+
+    today = run_identity(compose_config("task=atari"))
+    before = run_identity(compose_config("task=atari", "~task.network.input_norm"))
+    assert today[1:] == before[1:]  # fingerprint and cell
+    other = run_identity(compose_config("task=atari", "task.network.input_norm=centred"))
+    assert other[1] != today[1]
+
+
 @pytest.mark.slow
 def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> None:
     overrides = ("task=atari", "debug=tiny", "representation.color=gray")

@@ -1,13 +1,17 @@
-"""Every shell command of the README, sweeps/README.md and paper/README.md (their fenced
-``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary folder: a command that stops
-working fails CI.
+"""Every shell command of the README, sweeps/README.md, paper/README.md, docs/runs.md's
+Slurm section and docs/events.md (their fenced ``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary
+folder: a command that stops working fails CI.
 
 How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, the first value of
 each axis its experiment file sweeps and the command does not set (one cell per grid axis);
-``/data/...`` paths become small data the test generates in that data set's layout;
+``/data/...`` paths become small data the test generates in that data set's layout, and so do
+the real clips of ``../shared/real-video`` (``EDR_REAL_VIDEO``), long enough to split in time;
+``../shared/events/`` the real recordings beside the repository (skipped when absent);
 ``edr-bench`` times tiny clips; ``edr-tables`` writes into the temporary folder. ``make``
 targets are not run here: ``make test`` is this suite, and ``make demo`` is ``edr-run -m
-experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``.
+experiment=kth_demo`` (a row of sweeps/README.md) followed by ``edr-tables``. Nor is
+``sweeps/slurm-local.sh``: CI starts its cluster around the tests; a ``hydra/launcher=slurm``
+command runs through that cluster (any whose ``sinfo`` answers), and is left out where none is up.
 """
 
 from __future__ import annotations
@@ -20,19 +24,27 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
+from cluster import LOCAL_CLUSTER, slurm_environment
 from edr.data.synthetic import write_synthetic_kth, write_synthetic_ucf101
 from edr.data.video import write_video
 from edr.run import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md")
+DOCUMENTS = ("README.md", "sweeps/README.md", "paper/README.md", "docs/runs.md", "docs/events.md")
+SECTIONS = {"docs/runs.md": "## On Slurm"}  # the rest of the page repeats the README's commands
+SHARED_EVENTS = ROOT.parent / "shared" / "events"  # real recordings docs/events.md reads
 BENCH_TINY = ("--quick", "--warmup", "1", "--frames", "4", "--flow-frames", "2", "--height", "32",
               "--width", "48", "--atari-batch", "2", "--long-frames", "9")  # fmt: skip
 
 
-def documented_commands(document: Path) -> list[list[str]]:
-    """The commands of ``document``'s ```bash blocks, split as the shell would, comments off."""
-    blocks = re.findall(r"```bash\n(.*?)```", document.read_text(), flags=re.S)
+def documented_commands(document: Path, section: str | None = None) -> list[list[str]]:
+    """The commands of ``document``'s ```bash blocks (those of its ``section`` if given, up to
+    the next heading of its level), split as the shell would, comments off."""
+    text = document.read_text()
+    if section is not None:
+        level = section.split()[0]
+        text = re.split(rf"\n{level} ", text.split(f"\n{section}\n", 1)[1], maxsplit=1)[0]
+    blocks = re.findall(r"```bash\n(.*?)```", text, flags=re.S)
     text = "\n".join(blocks).replace("\\\n", " ")
     return [words for line in text.splitlines() if (words := shlex.split(line, comments=True))]
 
@@ -45,6 +57,15 @@ def _data(tmp: Path) -> dict[str, str]:
     frames = np.random.default_rng(0).integers(0, 255, (12, 3, 60, 80), dtype=np.uint8)
     clip = write_video(tmp / "data" / "clip.avi", frames)
     return {"/data/KTH": str(kth), "/data/UCF-101": str(ucf), "/data/clip.avi": str(clip)}
+
+
+def _real_video(tmp: Path) -> Path:
+    """A stand-in for ``../shared/real-video``: generated videos in its ``kth/`` and ``ucf101/``,
+    40 frames each (a split in time of debug=tiny's 8-frame clips needs 40)."""
+    size = {"frames": 40, "height": 60, "width": 80}
+    write_synthetic_kth(tmp / "real-video" / "kth", persons=1, scenarios=1, **size)
+    write_synthetic_ucf101(tmp / "real-video" / "ucf101", groups=1, clips=1, **size)
+    return tmp / "real-video"
 
 
 def _sweep_axes(overrides: list[str]) -> dict[str, str]:
@@ -62,6 +83,7 @@ def _substituted(word: str, data: dict[str, str]) -> str:
 
 def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
     """The command made small (see the module's docstring)."""
+    words = [w.replace("../shared/events/", f"{SHARED_EVENTS}/") for w in words]
     program, args = words[0], [_substituted(w, data) for w in words[1:]]
     if program == "edr-run" and not {"--help", "--cfg"} & set(args):
         args = [*args, "debug=tiny"] if "debug=tiny" not in args else args
@@ -81,13 +103,23 @@ def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
 @pytest.mark.slow
 @pytest.mark.parametrize("document", DOCUMENTS)
 def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
-    commands = documented_commands(ROOT / document)
+    commands = documented_commands(ROOT / document, SECTIONS.get(document))
     assert commands, f"{document} has no bash block"
+    if "../shared/events/" in (ROOT / document).read_text() and not SHARED_EVENTS.is_dir():
+        pytest.skip(
+            f"{document} reads real recordings; {SHARED_EVENTS} (../shared/events) is absent"
+        )
     data = _data(tmp_path)
-    env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results")}
+    env = {"EDR_CACHE": str(tmp_path / "cache"), "EDR_RESULTS": str(tmp_path / "results"),
+           "EDR_REAL_VIDEO": str(_real_video(tmp_path))}  # fmt: skip
+    slurm = slurm_environment() if any("hydra/launcher=slurm" in w for w in commands) else None
     for words in commands:
-        if words[0] == "make":
+        if words[0] == "make" or any(LOCAL_CLUSTER.name in w for w in words):
             continue  # see the module's docstring
+        if "hydra/launcher=slurm" in words:
+            if slurm is None:
+                continue  # no cluster here (see the module's docstring)
+            env.update(slurm)  # SLURM_CONF, where the local cluster's is not set
         command = tiny(words, data, tmp_path)
         result = cli(*command, cwd=tmp_path, env=env)
         shown = shlex.join(words)

@@ -148,6 +148,30 @@ def test_table3_on_a_real_video_names_it(compose_config, tmp_path) -> None:
     assert len(_rows(text)) == 4 and all("bikes.mp4" in row[0] for row in _rows(text))
 
 
+def test_table3_labels_a_real_cameras_row_with_its_sensor_and_file(
+    compose_config, tmp_path
+) -> None:
+    import numpy as np
+
+    from edr.data.events import write_recording
+    from edr.representations.dvs import EVENT_DTYPE
+
+    events = np.zeros(50, EVENT_DTYPE)
+    events["t"], events["x"], events["y"] = np.arange(50) * 2000, np.arange(50) % 34, 7
+    recording = write_recording(tmp_path / "cam.npz", events, (34, 34))
+    run(compose_config("task=event_camera", "debug=tiny", f"task.events={recording}",
+                       f"out_dir={tmp_path / 'runs' / 'cam'}"))  # fmt: skip
+    (tmp_path / "bench").mkdir()
+    tables.main(["--runs", str(tmp_path / "runs"), "--bench", str(tmp_path / "bench"),
+                 "--out", str(tmp_path / "paper")])  # fmt: skip
+    text = (tmp_path / "paper" / "table3_event_camera.md").read_text()
+    camera = [row for row in _rows(text) if row[1] == "event camera, 34x34"]
+    assert len(camera) == 1 and camera[0][0] == "recording cam.npz (.npz)"
+    header = _header(text)
+    assert camera[0][header.index("Events/s")] == "510"  # 50 events in 0.098001 s
+    assert "bits/s (file)" in header and "Events/pixel/frame" in header
+
+
 @pytest.mark.slow
 def test_table4_kth(paper) -> None:
     text = (paper / "table4_kth.md").read_text()

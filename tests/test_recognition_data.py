@@ -15,13 +15,7 @@ from edr.data.clips import (
     ten_crops,
 )
 from edr.data.datasets import KTH_TEST_PERSONS, kth, ucf101
-from edr.data.events import (
-    list_recordings,
-    read_aedat2,
-    read_npz_events,
-    read_recording,
-    write_aedat2,
-)
+from edr.data.events import list_recordings, read_recording, write_recording
 from edr.data.from_videos import SPEEDS, sample_videos, write_speed_ucf101
 from edr.data.synthetic import (
     KTH_ACTIONS,
@@ -169,17 +163,17 @@ def test_event_files_round_trip(tmp_path) -> None:
         [1, 2, 3, 127],
         [1, 0, 1, 0],
     )
-    aedat = write_aedat2(tmp_path / "rec.aedat", events)
-    back = read_aedat2(aedat)
+    aedat = write_recording(tmp_path / "rec.aedat", events, (128, 128))
+    back = read_recording(aedat)
     np.testing.assert_array_equal(back, np.sort(events, order="t"))
     np.savez(tmp_path / "rec.npz", t=events["t"], x=events["x"], y=events["y"], p=events["p"])
     np.testing.assert_array_equal(read_recording(tmp_path / "rec.npz"), back)
     (tmp_path / "bad.aedat").write_bytes(b"#!AER-DAT2.0\r\n" + b"\x00" * 5)
     with pytest.raises(ValueError, match="truncated"):
-        read_aedat2(tmp_path / "bad.aedat")
+        read_recording(tmp_path / "bad.aedat")
     np.savez(tmp_path / "bad.npz", t=[1])
     with pytest.raises(ValueError, match="missing arrays"):
-        read_npz_events(tmp_path / "bad.npz")
+        read_recording(tmp_path / "bad.npz")
     (tmp_path / "boxing").mkdir()
     (tmp_path / "rec.npz").rename(tmp_path / "boxing" / "rec.npz")
     assert list_recordings(tmp_path, ("boxing", "walking")) == [

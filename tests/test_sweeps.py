@@ -116,3 +116,17 @@ def test_submitit_local_runs_a_job_end_to_end(cli, tmp_path) -> None:
     (record,) = sweep.glob("*/run.json")
     assert json.loads(record.read_text())["status"] == "finished"
     assert (sweep / ".submitit").is_dir()  # it went through submitit's executor
+
+
+@pytest.mark.slow
+def test_a_config_error_inside_a_submitit_job_comes_back_as_one_line(cli, tmp_path) -> None:
+    """The job raises it for the sweep that waits for its result (an exit would leave none:
+    without Slurm accounting, that sweep would wait forever)."""
+    result = cli(
+        "edr-run", "-m", "hydra/launcher=local_jobs", "hydra.launcher.timeout_min=10",
+        "task=kth", "debug=tiny", "task.epochs=-1", cwd=tmp_path,
+        env={"EDR_CACHE": str(tmp_path / "cache")},
+    )  # fmt: skip
+    assert result.returncode == 1, result.stderr[-3000:]
+    assert "task.epochs=-1: expected a number >= 1" in result.stderr
+    assert "Traceback" not in result.stderr and "UncompletedJobError" not in result.stderr

@@ -4,13 +4,15 @@
     edr-bench --video clip.avi      # a real decoded video (resized to 320x240)
     edr-bench --threads 1 --quick   # one thread, fewer repeats
     edr-bench --atari 16            # instead: Atari env steps/s with and without EDR
+    edr-bench --events a.raw b.aedat4   # instead: read speed of event recordings (events/s)
 
 Median throughput over ``--repeats`` timed calls after a warm-up call (which also compiles the
 numba kernels). Writes a record only, ``<out-dir>/speed_<host>_<time>.json`` (with ``--atari``,
-``atari_<host>_<time>.json``), and prints its table. ``--out-dir`` is ``results/runs/bench/`` by
-default, which git ignores; the committed records, from which ``edr-tables`` renders
-``paper/table2_speed.md`` and ``paper/atari_edr_cost.md``, are written with
-``--out-dir results/bench`` (``edr-tables --bench results/runs/bench`` renders yours).
+``atari_<host>_<time>.json``; with ``--events``, ``events_<host>_<time>.json``), and prints its
+table. ``--out-dir`` is ``results/runs/bench/`` by default, which git ignores; the committed
+records, from which ``edr-tables`` renders ``paper/table2_speed.md`` and
+``paper/atari_edr_cost.md``, are written with ``--out-dir results/bench``
+(``edr-tables --bench results/runs/bench`` renders yours).
 """
 
 from __future__ import annotations
@@ -268,6 +270,10 @@ def main(argv: list[str] | None = None) -> None:
         "--atari", type=int, metavar="ENVS", default=0,
         help="instead: env steps/s of ENVS parallel Atari envs with and without the EDR transform",
     )  # fmt: skip
+    parser.add_argument(
+        "--events", type=Path, nargs="+", metavar="FILE",
+        help="instead: events/s read_recording reads from these recordings (any format)",
+    )  # fmt: skip
     parser.add_argument("--game", default="Pong", help="the Atari game for --atari")
     parser.add_argument(
         "--backends", default="envpool,parallel",
@@ -301,6 +307,11 @@ def main(argv: list[str] | None = None) -> None:
         from edr.bench_atari import run_atari_bench  # ale-py, EnvPool and torchrl load only here
 
         run_atari_bench(args, repeats)
+        return
+    if args.events:
+        from edr.bench_events import run_events_bench
+
+        run_events_bench(args, repeats)
         return
 
     # ---- the clip ----------------------------------------------------------------------------

@@ -44,11 +44,12 @@ BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl Pa
 
 def training_throughput(
     game: str, num_envs: int, backend: str, env_steps: int, inputs: str = "fdr_edr"
-) -> tuple[float, float]:
+) -> tuple[float, float, dict[str, float]]:
     """Env steps/s of ``task=atari``'s training loop (``inputs``: FDR RGB + EDR gray or FDR RGB,
     its defaults otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
     bar shows them, and steady (from a quarter of the way on, after the first updates compiled
-    the EDR kernels and warmed the allocator: what a run of hours sees)."""
+    the EDR kernels and warmed the allocator: what a run of hours sees); and where the steady
+    part's time went, ms per update by phase (``time/*_ms`` of its history)."""
     from edr.rl.settings import EnvSettings, EvalSettings
     from edr.tasks.atari import HISTORY, train_paac
 
@@ -64,7 +65,7 @@ def training_throughput(
         history = json.loads((Path(out_dir) / HISTORY).read_text())
     fps = float(metrics["train/fps"])
     if len(history) < 2:
-        return fps, fps
+        return fps, fps, _phases(history)
     # each row's fps is cumulative from the first rollout: its elapsed time is env steps / fps
     elapsed = [row["env_steps"] / row["train/fps"] for row in history]
     warm = min(
@@ -72,7 +73,13 @@ def training_throughput(
         next(i for i, r in enumerate(history) if r["env_steps"] >= env_steps / 4),
     )
     steady = (history[-1]["env_steps"] - history[warm]["env_steps"]) / (elapsed[-1] - elapsed[warm])
-    return fps, steady
+    return fps, steady, _phases(history[warm + 1 :])
+
+
+def _phases(rows: list[dict[str, float]]) -> dict[str, float]:
+    """Mean ms per update of each phase over the history's ``rows``."""
+    keys = [k for k in rows[0] if k.startswith("time/")] if rows else []
+    return {k.removeprefix("time/"): statistics.mean(r[k] for r in rows) for k in keys}
 
 
 def atari_throughput(
@@ -149,12 +156,12 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
         result = atari_throughput(
             args.game, args.atari, args.steps, repeats, args.warmup, args.obs_dtype, backend,
         )  # fmt: skip
-        training = {}  # train_fps(_steady): FDR + EDR, as before; train_fps_fdr(_steady): FDR
+        training = {}  # train_fps(_steady, _phases_ms): FDR + EDR, as before; train_fps_fdr...: FDR
         for inputs, key in (("fdr", "train_fps_fdr"), ("fdr_edr", "train_fps")):
-            fps = (None, None)
+            fps = (None, None, {})
             if args.train_frames:
                 fps = training_throughput(args.game, args.atari, backend, args.train_frames, inputs)
-            training[key], training[f"{key}_steady"] = fps
+            training[key], training[f"{key}_steady"], training[f"{key}_phases_ms"] = fps
         record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                   "game": args.game, "num_envs": args.atari, "backend": backend,
                   "obs_dtype": args.obs_dtype,
@@ -176,8 +183,14 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
             print(
                 f"{backend:9s} training loop, env steps/s (steady): FDR "
                 f"{training['train_fps_fdr']:.0f} ({training['train_fps_fdr_steady']:.0f}), "
-                f"FDR + EDR {training['train_fps']:.0f} ({training['train_fps_steady']:.0f})"
+                f"FDR + EDR {training['train_fps']:.0f} ({training['train_fps_steady']:.0f}); "
+                f"over random actions (steady, FDR + EDR): "
+                f"{training['train_fps_steady'] / result.rows[1].fps:.2f}"
             )
+            for inputs, key in (("FDR", "train_fps_fdr"), ("FDR + EDR", "train_fps")):
+                phases = training[f"{key}_phases_ms"]
+                print(f"{backend:9s} {inputs} ms per update: " + ", ".join(
+                    f"{name.removesuffix('_ms')} {ms:.1f}" for name, ms in phases.items()))  # fmt: skip
     print(atari_cost_table(records))
     print(f"records: {', '.join(str(p) for p, _ in records)} (edr-tables renders "
           "paper/atari_edr_cost.md from them)")  # fmt: skip

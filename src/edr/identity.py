@@ -38,6 +38,9 @@ NON_SEMANTIC_SECTIONS = frozenset({"hydra", "paths"})
 IDENTITY_KEYS = ("seed", "task")
 # Groups whose files write into another section (``# @package representation``).
 PACKAGED_INTO = {"ablation": "representation"}
+# Settings added after runs were recorded, with the value those runs had: at that value a key
+# stays out of the fingerprint, so adding a setting with its default keeps old runs' identities.
+ADDED_DEFAULTS: dict[str, Any] = {"task.network.input_norm": "raw"}
 MAX_DIRNAME = 120  # longer job folder names end in a digest
 log = logging.getLogger(__name__)
 
@@ -61,9 +64,21 @@ def digest(payload: Any, length: int = 16) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:length]
 
 
+def without_added_defaults(config: dict[str, Any]) -> dict[str, Any]:
+    """``config`` without the keys of :data:`ADDED_DEFAULTS` that hold their default (in place)."""
+    for dotted, default in ADDED_DEFAULTS.items():
+        *path, key = dotted.split(".")
+        node: Any = config
+        for part in path:
+            node = node.get(part) if isinstance(node, Mapping) else None
+        if isinstance(node, dict) and key in node and node[key] == default:
+            del node[key]
+    return config
+
+
 def _identity_config(cfg: DictConfig) -> dict[str, Any]:
     resolved = OmegaConf.to_container(cfg, resolve=True)
-    return semantic_config({k: resolved.get(k) for k in IDENTITY_KEYS})
+    return without_added_defaults(semantic_config({k: resolved.get(k) for k in IDENTITY_KEYS}))
 
 
 def run_identity(cfg: DictConfig) -> tuple[dict[str, Any], str, str]:

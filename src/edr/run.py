@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import inspect
 import logging
+import os
 import random
 import sys
 import time
@@ -21,7 +22,7 @@ import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
+from hydra.errors import CompactHydraException, InstantiationException
 from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -225,12 +226,23 @@ class _Sweep:
     refused = 0  # cells of this multirun refused by a check (the exit status says so)
 
 
+class JobFailed(CompactHydraException):
+    """A submitit job's config error, handed back to the sweep that waits for the job's result,
+    which prints it as one line (a job that exits leaves no result, and without Slurm accounting
+    the sweep would wait for it forever)."""
+
+
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def hydra_app(cfg: DictConfig) -> None:
+    in_job = bool(os.environ.get("SUBMITIT_EXECUTOR"))  # a Slurm or local submitit job
+    if in_job:  # submitit ignores SIGTERM; scancel, a time limit or preemption end it as kill does
+        interrupts.install()
     try:
         run(cfg)
     except (ConfigError, UnreadableRecord, UnreadableCheckpoint) as error:  # one line, no trace
         log.error("%s", error)
+        if in_job:
+            raise JobFailed(str(error)) from None
         if not _in_sweep():
             raise SystemExit(2) from None
         # a sweep goes on to its next cell and ends with its summary line, counting this one

@@ -3,7 +3,8 @@
 The paper's Appendix D: videos resized to 89x67; training clips are random volumes of 60
 frames, cropped at a random scale in (1, .875, .75, .66) of the short side and resized to
 58x58, flipped at random; testing takes the first 60 frames and 10 crops (4 corners and the
-centre, each also flipped) and averages the softmax over them.
+centre, each also flipped) and averages the softmax over them. Split in time (not the paper's
+protocol), the same from each video's training part and its test part (:class:`ClipDataset`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from tqdm import tqdm
 
 from edr import interrupts
 from edr.atomic import atomic_path
-from edr.data.datasets import VideoSet
+from edr.data.datasets import Video, VideoSet
 from edr.data.video import read_video
 
 PAPER_SCALES = (1.0, 0.875, 0.75, 0.66)
@@ -180,7 +181,14 @@ def ten_crops(
 
 
 class ClipDataset(Dataset):
-    """(clip, label) pairs: training clips (frames, C, crop, crop) or test stacks (10, ...)."""
+    """(clip, label) pairs: training clips (frames, C, crop, crop) or test stacks (10, ...).
+
+    One item per video: a training clip drawn at random in time, or the test stack of its first
+    frames. Split in time (``videos.time_split``), a training clip is drawn from the video's
+    training part only, and its test part gives consecutive test stacks, one item each.
+    ``shuffle_frames``: each clip's frames in a random order (a new one per training draw, a
+    fixed one per test item), so that only what single frames show can tell classes apart.
+    """
 
     def __init__(
         self,
@@ -192,17 +200,51 @@ class ClipDataset(Dataset):
         train: bool,
         scales: Sequence[float] = PAPER_SCALES,
         negate: Sequence[int] = (),
+        shuffle_frames: bool = False,
     ) -> None:
         self.videos, self.source = videos, source
         self.frames, self.crop, self.train = frames, crop, train
         self.scales, self.negate = tuple(scales), tuple(negate)
+        self.shuffle_frames = shuffle_frames
+        self.items = self._items()  # (video index, first frame of a test stack or None)
+
+    def _window(self, video: Video, length: int) -> range:
+        """The frames of ``video`` (``length`` of them) that this set's clips may use."""
+        if self.videos.time_split is None:
+            return range(length)
+        return self.videos.time_split.window(length, self.frames, str(video.path))
+
+    def _items(self) -> list[tuple[int, int | None]]:
+        if self.train or self.videos.time_split is None:
+            return [(i, None) for i in range(len(self.videos))]
+        items = []
+        for i, video in enumerate(self.videos.videos):
+            part = self._window(video, len(self.source(video.path)))
+            items += [(i, s) for s in range(part.start, part.stop - self.frames + 1, self.frames)]
+        return items
 
     def __len__(self) -> int:
-        return len(self.videos)
+        return len(self.items)
 
     def __getitem__(self, index: int) -> tuple[torch.Tensor, int]:
-        video = self.videos.videos[index]
-        array = torch.from_numpy(np.array(self.source(video.path)))
+        i, start = self.items[index]
+        video = self.videos.videos[i]
+        array = self.source(video.path)  # (T, C, H, W), memory-mapped where cached on disk
+        part = self._window(video, len(array))
+        if start is not None:
+            part = range(start, start + self.frames)
+        frames = torch.from_numpy(np.array(array[part.start : part.stop]))
         if self.train:
-            return random_clip(array, self.frames, self.crop, self.scales, self.negate), video.label
-        return ten_crops(array, self.frames, self.crop, self.negate), video.label
+            clip = random_clip(frames, self.frames, self.crop, self.scales, self.negate)
+            return self._shuffled(clip, 0, None), video.label
+        # (10, frames, C, crop, crop)
+        crops = ten_crops(frames, self.frames, self.crop, self.negate)
+        return self._shuffled(crops, 1, torch.Generator().manual_seed(index)), video.label
+
+    def _shuffled(
+        self, clip: torch.Tensor, dim: int, generator: torch.Generator | None
+    ) -> torch.Tensor:
+        """``clip`` with its frames (along ``dim``) in a random order, if asked for."""
+        if not self.shuffle_frames:
+            return clip
+        return clip.index_select(dim, torch.randperm(clip.shape[dim], generator=generator))

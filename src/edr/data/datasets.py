@@ -12,6 +12,10 @@ UCF-101::
 KTH::
 
     <root>/<action>/personXX_<action>_dY_uncomp.avi   6 actions, persons 01-25, scenarios d1-d4
+
+Either set can also be split in time (``protocol="time"``, not the paper's protocol): every
+video serves both, its first part for training and its last part for testing (:class:`TimeSplit`);
+UCF-101 then needs no ``ucfTrainTestlist/``, only ``<root>/<ClassName>/*.avi``.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ KTH_LAYOUT = (
     f"<root>/<action>/personXX_<action>_dY_uncomp.avi for the actions {', '.join(KTH_ACTIONS)}"
 )
 log = logging.getLogger(__name__)
+UCF_GROUP = re.compile(r"_g(\d+)_c\d+")
 KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.avi$")
 # Schuldt et al. (2004): training + validation persons, and the test persons.
 KTH_TRAIN_PERSONS = (11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 23, 24, 25, 1, 4)
@@ -54,12 +59,38 @@ class Video:
 
 
 @dataclass(frozen=True)
+class TimeSplit:
+    """The split in time of every video: its first ``train_fraction`` (of the frames left once a
+    gap of one clip is taken out) trains, its last part tests. Not the paper's protocol: for
+    sets too small to hold every class in both a train and a test video."""
+
+    train: bool  # which part this split's clips come from
+    train_fraction: float
+
+    def window(self, length: int, clip: int, name: str) -> range:
+        """The frames of a video of ``length`` frames (``name``) that this part's clips of
+        ``clip`` frames may use: ``[0, cut)`` or ``[cut + clip, length)``, so that between the
+        last training frame and the first test frame lie ``clip`` frames."""
+        cut = int(self.train_fraction * (length - clip))
+        part = range(0, cut) if self.train else range(cut + clip, length)
+        if len(part) < clip:
+            raise ConfigError(
+                f"{name}: its {length} frames leave {max(len(part), 0)} to the "
+                f"{'training' if self.train else 'test'} part of the split in time, less than a "
+                f"clip ({clip} frames, task.frames): use shorter clips or another "
+                "task.videos.train_fraction"
+            )
+        return part
+
+
+@dataclass(frozen=True)
 class VideoSet:
     """A split of a data set: its videos and the class names their labels index."""
 
     videos: tuple[Video, ...]
     classes: tuple[str, ...]
     index_files: tuple[Path, ...] = ()  # files that define the split (UCF-101's lists)
+    time_split: TimeSplit | None = None  # split in time: which part of each video to use
 
     def __len__(self) -> int:
         return len(self.videos)
@@ -73,13 +104,25 @@ def _missing(root: Path, what: str, layout: str) -> DataLayoutError:
     return DataLayoutError(f"{what} not found under {root}; expected the layout {layout}")
 
 
-def ucf101(root: str | Path, *, split: Literal[1, 2, 3] = 1, train: bool = True) -> VideoSet:
-    """The train or test videos of official split 1, 2 or 3."""
+def ucf101(
+    root: str | Path,
+    *,
+    split: Literal[1, 2, 3] = 1,
+    train: bool = True,
+    protocol: Literal["official", "time"] = "official",
+    train_fraction: Fraction = 0.75,
+) -> VideoSet:
+    """The train or test videos of official split 1, 2 or 3; ``protocol="time"``: every video of
+    ``<root>/<ClassName>/*.avi``, split in time (:class:`TimeSplit`, ``train_fraction``)."""
     root = Path(root)
     if split not in (1, 2, 3):
         raise ValueError(f"UCF-101 has splits 1, 2 and 3, not {split}")
     if not root.is_dir():
         raise _missing(root, "UCF-101 root", UCF_LAYOUT)
+    if protocol == "time":
+        return _ucf101_in_time(root, TimeSplit(train, train_fraction))
+    if protocol != "official":
+        raise ValueError(f"protocol must be 'official' or 'time', got {protocol!r}")
     lists = next(
         (d for d in (root / "ucfTrainTestlist", root.parent / "ucfTrainTestlist") if d.is_dir()),
         None,
@@ -111,7 +154,7 @@ def ucf101(root: str | Path, *, split: Literal[1, 2, 3] = 1, train: bool = True)
             raise FileNotFoundError(
                 f"{list_file}:{n} lists {rel}, which is not under {root} ({UCF_LAYOUT})"
             )
-        group = re.search(r"_g(\d+)_c\d+", rel)
+        group = UCF_GROUP.search(rel)
         videos.append(Video(path, classes[name], group.group(1) if group else rel))
     if not videos:
         raise ValueError(f"{list_file} lists no videos")
@@ -119,16 +162,30 @@ def ucf101(root: str | Path, *, split: Literal[1, 2, 3] = 1, train: bool = True)
     return VideoSet(tuple(videos), names, (class_file, list_file))
 
 
+def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
+    """Every ``<root>/<ClassName>/*.avi``, classes in sorted order, split in time."""
+    folders = sorted(d for d in root.iterdir() if d.is_dir() and any(d.glob("*.avi")))
+    if not folders:
+        raise _missing(root, "class folders with .avi files", "<root>/<ClassName>/*.avi")
+    videos = [
+        Video(path, label, group.group(1) if (group := UCF_GROUP.search(path.name)) else path.stem)
+        for label, folder in enumerate(folders)
+        for path in sorted(folder.glob("*.avi"))
+    ]
+    return VideoSet(tuple(videos), tuple(d.name for d in folders), time_split=time_split)
+
+
 def kth(
     root: str | Path,
     *,
     train: bool = True,
-    protocol: Literal["random", "person"] = "random",
+    protocol: Literal["random", "person", "time"] = "random",
     train_fraction: Fraction = 0.75,
     seed: int = 0,
 ) -> VideoSet:
     """KTH's videos; ``protocol="random"``: the paper's seeded 75/25 random split of the videos,
-    ``"person"``: the standard split by person (Schuldt et al. 2004)."""
+    ``"person"``: the standard split by person (Schuldt et al. 2004), ``"time"``: every video,
+    split in time (:class:`TimeSplit`; ``train_fraction`` of each video's frames trains)."""
     root = Path(root)
     if not root.is_dir():
         raise _missing(root, "KTH root", KTH_LAYOUT)
@@ -144,6 +201,8 @@ def kth(
             videos.append(Video(path, label, match.group(1)))
     if not videos:
         raise _missing(root, "no .avi files", KTH_LAYOUT)
+    if protocol == "time":
+        return VideoSet(tuple(videos), KTH_ACTIONS, time_split=TimeSplit(train, train_fraction))
     if protocol == "person":
         persons = {f"{p:02d}" for p in (KTH_TRAIN_PERSONS if train else KTH_TEST_PERSONS)}
         chosen = [v for v in videos if v.group in persons]
@@ -153,7 +212,7 @@ def kth(
         keep = order[:cut] if train else order[cut:]
         chosen = [videos[i] for i in sorted(keep)]
     else:
-        raise ValueError(f"protocol must be 'random' or 'person', got {protocol!r}")
+        raise ValueError(f"protocol must be 'random', 'person' or 'time', got {protocol!r}")
     if not chosen:
         raise ValueError(
             f"the {protocol} split of {root} leaves no {'train' if train else 'test'} videos"

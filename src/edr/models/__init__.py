@@ -3,7 +3,12 @@ head) and PAAC's actor-critic network for Atari (:mod:`edr.models.paac`)."""
 
 from edr.models.convnets import LeNet, NiN
 from edr.models.ltc import LTC
-from edr.models.recognition import ConvRecurrent, RecognitionModel, activation_sparsity
+from edr.models.recognition import (
+    ConvRecurrent,
+    RecognitionModel,
+    activation_sparsity,
+    input_norm,
+)
 from edr.models.recurrent import FTRCN, GRURCN, LRCN
 
 __all__ = [
@@ -16,4 +21,5 @@ __all__ = [
     "NiN",
     "RecognitionModel",
     "activation_sparsity",
+    "input_norm",
 ]

@@ -4,7 +4,10 @@ Trunk (Clemente et al. 2017): conv 16 8x8/4, conv 32 4x4/2 (ReLU) -> on 84x84 a 
 Core: ``lstm`` (FC 256 then an LSTM of 256), ``ftlstm`` (a feature-tracking LSTM: every gate's
 recurrent term is, per channel, a map from every location to every location of that channel,
 as FT-RCN; no recurrent weight couples channels) or ``none`` (FC 256, the original PAAC).
-Heads: policy logits and state value.
+``lenet_ftlstm`` is the authors' structure instead of PAAC's trunk: LeNet (conv 6 5x5, pool 2,
+conv 16 5x5, pool 2) on each frame as it comes, the feature-tracking LSTM over its 16x18x18 maps,
+then FC 512 (their ``NIPSNetwork``); it reads one frame per step, its LSTM holding the past.
+Heads: policy logits and state value. The frames may be normalised first (``input_norm``).
 
 The network steps any batch of envs with its recurrent state (``h``, ``c``), restarting from
 zeros wherever ``is_init`` is set. Its input is the last frames stacked on the channel axis
@@ -25,10 +28,14 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+from edr.models.convnets import LeNet
 from edr.models.recurrent import feature_tracking_weights, track_features
 
-Core = Literal["lstm", "ftlstm", "none"]
+Core = Literal["lstm", "ftlstm", "none", "lenet_ftlstm"]
 Init = Literal["orthogonal", "fan_in"]
+InputNorm = Literal["raw", "centred", "batchnorm"]
+AUTHORS_WIDTHS = (6, 16)  # the authors' LeNet: conv_filters [[5, 5, C, 6], [5, 5, 6, 16]]
+AUTHORS_HIDDEN = 512  # their FC after the LSTM
 
 
 class FeatureTrackingLSTMCell(nn.Module):
@@ -73,7 +80,13 @@ class FramesConv(nn.Conv2d):
 
 class PAACNetwork(nn.Module):
     """(obs, h, c, is_init) -> (logits, value, h', c'); obs (..., C, 84, 84), C = ``in_channels``,
-    or n frames (..., C / n, 84, 84), oldest first."""
+    or ``frames`` frames (..., C / frames, 84, 84), oldest first.
+
+    ``input_norm``: ``raw`` frames as the env gives them, ``centred`` (minus 0.5), or
+    ``batchnorm`` (each frame channel normalised by the batch's statistics, as the authors' code
+    did with TensorFlow's ``batch_norm`` in training mode: the network is never put in eval mode,
+    so acting and evaluation normalise by their batch of envs too).
+    """
 
     def __init__(
         self,
@@ -82,21 +95,41 @@ class PAACNetwork(nn.Module):
         core: Core = "lstm",
         hidden: int = 256,
         init: Init = "orthogonal",
+        input_norm: InputNorm = "raw",
+        frames: int = 1,
     ) -> None:
         super().__init__()
-        self.trunk = nn.Sequential(
-            FramesConv(in_channels, 16, 8, stride=4),
-            nn.ReLU(),
-            nn.Conv2d(16, 32, 4, stride=2),
-            nn.ReLU(),
-        ).to(memory_format=torch.channels_last)  # ~3x faster convolutions on CPU
+        if in_channels % frames:
+            raise ValueError(f"{in_channels} input channels do not split into {frames} frames")
+        if core == "lenet_ftlstm" and frames != 1:
+            raise ValueError(
+                f"core=lenet_ftlstm reads one frame per step (its LSTM holds the past), got {frames}"
+            )
+        self.input_norm = input_norm
+        if input_norm == "batchnorm":
+            self.normalise = nn.BatchNorm2d(in_channels // frames)
+        if core == "lenet_ftlstm":
+            self.trunk: nn.Sequential = LeNet(in_channels, AUTHORS_WIDTHS)
+        else:
+            self.trunk = nn.Sequential(
+                FramesConv(in_channels, 16, 8, stride=4),
+                nn.ReLU(),
+                nn.Conv2d(16, 32, 4, stride=2),
+                nn.ReLU(),
+            )
+        self.trunk.to(memory_format=torch.channels_last)  # ~3x faster convolutions on CPU
+        self.core_type = core
         with torch.no_grad():
-            _, channels, h, w = self.trunk([torch.zeros(1, in_channels, 84, 84)]).shape
-        self.core_type, self.channels, self.locations = core, channels, h * w
-        if core == "ftlstm":
+            probe = [torch.zeros(2, in_channels // frames, 84, 84)] * frames
+            _, channels, h, w = self._maps(probe).shape
+        self.channels, self.locations = channels, h * w
+        if core in ("ftlstm", "lenet_ftlstm"):
             self.state_size = channels * h * w
             self.cell: nn.Module = FeatureTrackingLSTMCell(channels, h * w)
             features = self.state_size
+            if core == "lenet_ftlstm":  # FC 512 on the LSTM's output
+                self.embed = nn.Sequential(nn.Linear(features, AUTHORS_HIDDEN), nn.ReLU())
+                features = AUTHORS_HIDDEN
         else:
             self.embed = nn.Sequential(nn.Flatten(), nn.Linear(channels * h * w, hidden), nn.ReLU())
             self.state_size = hidden if core == "lstm" else 1
@@ -127,14 +160,25 @@ class PAACNetwork(nn.Module):
                 layer.weight.copy_(weight)
                 layer.bias.copy_(bias)
 
+    def _maps(self, frames: list[torch.Tensor]) -> torch.Tensor:
+        """The trunk's feature maps (B, F, h, w) of the frames [(B, C, 84, 84)] * n; observations
+        may come as float16, and go channels-last as the trunk."""
+        frames = [f.to(torch.float32, memory_format=torch.channels_last) for f in frames]
+        if self.input_norm == "centred":
+            frames = [f - 0.5 for f in frames]
+        elif self.input_norm == "batchnorm":
+            frames = [self.normalise(f) for f in frames]
+        if self.core_type == "lenet_ftlstm":
+            return self.trunk(frames[-1])  # (B, 16, 18, 18)
+        return self.trunk(frames)  # (B, 32, 9, 9)
+
     def _step(
         self, frames: list[torch.Tensor], h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, ...]:
-        # (B, 32, 9, 9); observations may come as float16, and go channels-last as the trunk
-        maps = self.trunk([f.to(torch.float32, memory_format=torch.channels_last) for f in frames])
-        if self.core_type == "ftlstm":
+        maps = self._maps(frames)
+        if self.core_type in ("ftlstm", "lenet_ftlstm"):
             h, c = self.cell(maps.flatten(2), (h, c))
-            features = h
+            features = h if self.core_type == "ftlstm" else self.embed(h)
         elif self.core_type == "lstm":
             h, c = self.cell(self.embed(maps), (h, c))
             features = h

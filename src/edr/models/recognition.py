@@ -34,19 +34,37 @@ class ConvRecurrent(nn.Module):
 
 
 class RecognitionModel(nn.Module):
-    """``representation`` (None when the data already hold it) followed by ``backbone``.
+    """``representation`` (None when the data already hold it), then ``input_norm`` if given,
+    then ``backbone``.
 
     Keeping an on-the-fly representation inside the model lets a learnable EDR train with it.
+    ``input_norm`` (:func:`input_norm`) standardises each channel of the backbone's input.
     """
 
-    def __init__(self, representation: nn.Module | None, backbone: nn.Module) -> None:
+    def __init__(
+        self,
+        representation: nn.Module | None,
+        backbone: nn.Module,
+        input_norm: nn.Module | None = None,
+    ) -> None:
         super().__init__()
         self.representation = representation
+        self.input_norm = input_norm
         self.backbone = backbone
 
     def forward(self, clip: torch.Tensor) -> torch.Tensor:
         x = self.representation(clip) if self.representation is not None else clip
+        if self.input_norm is not None:  # (B, T, C, H, W) -> (B, C, T, H, W) and back
+            x = self.input_norm(x.transpose(1, 2)).transpose(1, 2)
         return self.backbone(x)
+
+
+def input_norm(channels: int) -> nn.Module:
+    """Each of ``channels`` input channels to zero mean and unit variance: the batch's statistics
+    in training, their running averages in testing, no learned scale or shift. What makes a
+    representation that is non-negative and sparse (EDR's ON and OFF) reach the backbone centred
+    and at the scale of any other."""
+    return nn.BatchNorm3d(channels, affine=False)
 
 
 @torch.no_grad()

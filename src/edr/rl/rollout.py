@@ -19,6 +19,7 @@ from torch import nn
 from torchrl.envs import EnvBase
 
 from edr.models.paac import PAACNetwork
+from edr.rl.phases import PhaseClock
 
 
 def observations_held(rollout_steps: int, frame_stack: int = 1) -> int:
@@ -55,9 +56,14 @@ class Actor:
     """
 
     def __init__(
-        self, env: EnvBase, network: PAACNetwork | UniformPolicy, frame_stack: int = 1
+        self,
+        env: EnvBase,
+        network: PAACNetwork | UniformPolicy,
+        frame_stack: int = 1,
+        clock: PhaseClock | None = None,
     ) -> None:
         self.env, self.network, self.frame_stack = env, network, frame_stack
+        self.clock = clock or PhaseClock()  # the env's steps and the acting forward passes
         self.num_actions = env.action_spec.shape[-1]
         self._td: TensorDictBase | None = None  # the envs' current step; None: reset first
         self._h = self._c = torch.zeros(0)  # (N, state_size) the recurrent state
@@ -101,9 +107,11 @@ class Actor:
         self._h, self._c = self._h.detach(), self._c.detach()  # truncated backpropagation
         logits, values, actions, rewards, dones, scores = [], [], [], [], [], []
         for _ in range(steps):
-            step_logits, value = self._act(td)
+            with self.clock.phase("forward"):
+                step_logits, value = self._act(td)
             actions.append(td["action"].argmax(-1))
-            out, td = self.env.step_and_maybe_reset(td)
+            with self.clock.phase("env"):
+                out, td = self.env.step_and_maybe_reset(td)
             done = out["next", "done"].reshape(-1, 1)
             logits.append(step_logits.reshape(done.shape[0], -1))
             values.append(value.reshape(-1, 1))
@@ -111,7 +119,7 @@ class Actor:
             dones.append(done)
             if done.any():
                 scores += out["next", "episode_reward"].reshape(-1, 1)[done].tolist()
-        with torch.no_grad():
+        with torch.no_grad(), self.clock.phase("forward"):
             _, bootstrap, _, _ = self.network(self._input(td), self._h, self._c, td["is_init"])
         self._td = td
         return Rollout(

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from edr.models.paac import Core, Init
+from edr.models.paac import Core, Init, InputNorm
 from edr.representations import EDR
 from edr.rl.envs import Backend, Preset
 from edr.rl.optim import OptimizerName
@@ -60,8 +60,9 @@ class EnvSettings:
 class NetworkSettings:
     """The actor-critic network after the conv trunk."""
 
-    core: Core = "ftlstm"  # ftlstm (the paper's), lstm, or none (feed-forward PAAC)
+    core: Core = "ftlstm"  # ftlstm (the paper's), lstm, none (feed-forward PAAC), lenet_ftlstm
     init: Init = "fan_in"  # fan_in (PAAC's TensorFlow code) or orthogonal (OpenAI's A2C)
+    input_norm: InputNorm = "raw"  # raw, centred (minus 0.5) or batchnorm frames
 
 
 @dataclass(frozen=True)

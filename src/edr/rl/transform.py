@@ -11,6 +11,7 @@ window of the last frames is :class:`edr.rl.rollout.Actor`'s.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from contextlib import nullcontext
 from typing import Any, Literal
 
 import numpy as np
@@ -24,6 +25,7 @@ from torchrl.envs.transforms.utils import _get_reset
 from edr.representations import EDR, EDRState, kernels
 from edr.representations.base import to_float, to_gray
 from edr.representations.edr import KernelArgs
+from edr.rl.phases import PhaseClock
 
 
 class _PerEnvStream(Transform):
@@ -38,6 +40,7 @@ class _PerEnvStream(Transform):
         if len(self.out_keys) != 1:
             raise ValueError(f"{type(self).__name__} writes one out_key, got {self.out_keys}")
         self._last: torch.Tensor | None = None  # (N, ...) the latest output
+        self.clock: PhaseClock | None = None  # set by a training loop that times its phases
 
     @property
     def reset_key(self) -> str:
@@ -66,9 +69,10 @@ class _PerEnvStream(Transform):
 
     @torch.no_grad()
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        x = self._input(next_tensordict)
-        fresh = self._fresh(next_tensordict)
-        self._last = self._restart(x, None) if fresh else self._advance(x)
+        with self.clock.phase("observation") if self.clock else nullcontext():
+            x = self._input(next_tensordict)
+            fresh = self._fresh(next_tensordict)
+            self._last = self._restart(x, None) if fresh else self._advance(x)
         return self._emit(next_tensordict, self._last)
 
     @torch.no_grad()

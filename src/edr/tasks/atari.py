@@ -43,6 +43,7 @@ from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.loss import n_step_returns, paac_loss
 from edr.rl.optim import make_optimizer
+from edr.rl.phases import PhaseClock
 from edr.rl.rollout import Actor, UniformPolicy, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
@@ -52,6 +53,7 @@ from edr.rl.settings import (
     NetworkSettings,
     OptimSettings,
 )
+from edr.rl.transform import ObservationFrame
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import ConfigError, LoggerName, PositiveInt
@@ -91,7 +93,7 @@ def train_paac(
     critic's mean value, the fraction of dead units per ReLU layer on the latest rollout, and
     the mean score of the last 20 training episodes.
     """
-    _check_env(env)
+    _check_env(env, network)
     backend = env.resolved_backend()
     # ---- envs, network, optimizer ------------------------------------------------------------
     env_kwargs = _env_kwargs(env)
@@ -101,7 +103,11 @@ def train_paac(
         frame_ring=observations_held(loss.rollout_steps, env.frame_stack), **env_kwargs,
     )  # fmt: skip
     envs.set_seed(seed)
-    actor = Actor(envs, net, env.frame_stack)
+    clock = PhaseClock()  # where each update's time goes, into the history
+    for transform in envs.transform:  # the observation's transform, where it runs in-process
+        if isinstance(transform, ObservationFrame):
+            transform.clock = clock
+    actor = Actor(envs, net, env.frame_stack, clock)
     dead_units = DeadUnits(net)
     opt = make_optimizer(
         optim.name,
@@ -150,29 +156,29 @@ def train_paac(
                     scalars.log_scalar(key, value, step=steps_done)
         bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
 
+    clock.lap()  # the first row's times start with the loop, not with the envs' set-up
     try:
         update = 0
         while steps_done < env_steps:
             update += 1
             interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
             dead_units.reset()
-            collect_start = time.perf_counter()
             rollout = actor.rollout(loss.rollout_steps)  # the envs' steps and the forward passes
-            update_start = time.perf_counter()
-            returns = n_step_returns(
-                rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
-            )
-            total, loss_parts = paac_loss(
-                rollout.logits, rollout.values, rollout.actions, returns,
-                loss.entropy_coeff, loss.critic_coeff, loss.scale,
-            )  # fmt: skip
-            opt.zero_grad(set_to_none=True)
-            total.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
-            updating = True
-            opt.step()
-            schedule.step()
-            update_end = time.perf_counter()
+            with clock.phase("backward"):  # the loss and its gradient
+                returns = n_step_returns(
+                    rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
+                )
+                total, loss_parts = paac_loss(
+                    rollout.logits, rollout.values, rollout.actions, returns,
+                    loss.entropy_coeff, loss.critic_coeff, loss.scale,
+                )  # fmt: skip
+                opt.zero_grad(set_to_none=True)
+                total.backward()
+            with clock.phase("optimizer"):
+                grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
+                updating = True
+                opt.step()
+                schedule.step()
             steps_done += rollout.env_steps
             updating = False
             recent.extend(rollout.scores)
@@ -182,8 +188,8 @@ def train_paac(
             window.append({
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
-                "time/collect_ms": 1e3 * (update_start - collect_start),  # env steps + forward
-                "time/update_ms": 1e3 * (update_end - update_start),  # loss, backward, step
+                "train/logit_spread": _logit_spread(rollout.logits),
+                **clock.lap(),  # time/env_ms, observation, forward, backward, optimizer, other
                 **_prefixed(losses),
             })  # fmt: skip
             bar.update(rollout.env_steps)
@@ -238,8 +244,13 @@ def _random_metrics(scores: list[float] | None, evaluation: EvalSettings) -> dic
     return {"eval/random_mean": float(np.mean(scores)), "eval/max_steps": evaluation.max_steps}
 
 
-def _check_env(env: EnvSettings) -> None:
+def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
     """One line for a setting that cannot work, before any env starts."""
+    if network.core == "lenet_ftlstm" and env.frame_stack != 1:
+        raise ConfigError(
+            "task.network.core=lenet_ftlstm reads one frame per step (its LSTM holds the past): "
+            f"add task.env.frame_stack=1 (got {env.frame_stack})"
+        )
     if env.inputs != "fdr" and not isinstance(env.edr, EDR):
         raise ConfigError(
             f"task.env.inputs={env.inputs} computes EDR events on the fly from the representation "
@@ -263,6 +274,12 @@ def _check_env(env: EnvSettings) -> None:
             "task.env.backend=envpool plays ALE games only: your env needs backend auto, serial "
             "or parallel"
         )
+
+
+def _logit_spread(logits: torch.Tensor) -> float:
+    """How much the policy tells states apart: the logits' std across the rollout's states
+    (N*T of them), averaged over actions. Near 0 while the policy ignores what it sees."""
+    return float(logits.detach().reshape(-1, logits.shape[-1]).std(0).mean())  # (N*T, A) -> ()
 
 
 def _prefixed(losses: dict[str, float]) -> dict[str, float]:
@@ -308,6 +325,8 @@ def _network(
         "num_actions": actions,
         "core": network.core,
         "init": network.init,
+        "input_norm": network.input_norm,
+        "frames": frame_stack,
     }
     return PAACNetwork(**arguments), arguments
 

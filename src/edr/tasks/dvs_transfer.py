@@ -1,9 +1,10 @@
 """DVS transfer (the paper's Appendix A): a ConvNet+RCN trained on KTH with EDR takes
 event-camera frames straight in — no EDR layer — and is fine-tuned on 70 % of them.
 
-Event recordings come from disk (``dvs_root``: ``<root>/<action>/*.npz|*.aedat``) or, by
-default, from the DVS simulator run on KTH videos (``streams_per_class`` per action). Both are
-binned to one [ON, OFF] frame per video frame interval, like EDR's output.
+Event recordings come from disk (``dvs_root``: ``<root>/<action>/<recording>``, any format
+:mod:`edr.data.events` reads) or, by default, from the DVS simulator run on KTH videos
+(``streams_per_class`` per action). Both are binned to one [ON, OFF] frame per video frame
+interval, like EDR's output, and read and checked before the pre-training starts.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
-from edr.data.events import list_recordings, read_recording
+from edr.data.events import list_recordings, read_recording, sensor_of
 from edr.data.fingerprint import files_fingerprint
 from edr.representations import EDR, DVSSimulator, events_to_frames
 from edr.tasks.metrics import classification_metrics
@@ -30,6 +31,7 @@ from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted
 from edr.validate import ExistingDir, Fraction, NonNegativeInt, PositiveFloat, PositiveInt
 
+BIN_FRAMES = 16  # frame intervals binned at the sensor's resolution at a time
 KTH_SETTINGS = ("videos", "synthetic", "data_root", "cache_dir", "resize", "max_frames", "frames",
                 "crop")  # fmt: skip
 
@@ -42,23 +44,32 @@ def kth_settings(pretrain: Callable[..., Fitted]) -> dict[str, Any]:
 
 
 def _event_clip(
-    events: np.ndarray, height: int, width: int, frame_us: float, frames: int, crop: int
+    events: np.ndarray,
+    height: int,
+    width: int,
+    frame_us: float,
+    frames: int,
+    crop: int,
+    start_us: int = 0,
 ) -> torch.Tensor:
-    """Events -> (frames, 2, crop, crop) float32: [ON, OFF] counts per frame interval."""
-    n_bins = max(1, int(np.ceil((int(events["t"].max()) + 1) / frame_us))) if len(events) else 1
-    binned = events_to_frames(
-        events, height, width, time_window=frame_us, start_time=0.0, end_time=n_bins * frame_us,
-        dtype=np.float32,
-    )  # fmt: skip
-    clip = torch.from_numpy(binned[:, ::-1].copy())  # tonic's [OFF, ON] -> EDR's [ON, OFF]
-    return resize_clip(take_frames(clip, 0, frames), crop)
-
-
-def _sensor_size(events: np.ndarray, path: Path) -> tuple[int, int]:
-    """(height, width): a DVS128's 128x128 for AEDAT, else what the events span."""
-    if path.suffix == ".aedat" or not len(events):
-        return 128, 128
-    return int(events["y"].max()) + 1, int(events["x"].max()) + 1
+    """Events -> (frames, 2, crop, crop) float32: [ON, OFF] counts per frame interval from
+    ``start_us``. Only the first ``frames`` intervals are binned, a few at a time: memory is
+    the clip's, whatever the recording's length or sensor (a short one holds its last frame)."""
+    t = events["t"]
+    span = int(t[-1]) - start_us + 1 if len(events) else 1
+    n_bins = max(1, min(frames, int(np.ceil(span / frame_us))))
+    parts = []
+    for first in range(0, n_bins, BIN_FRAMES):
+        count = min(BIN_FRAMES, n_bins - first)
+        begin, end = start_us + first * frame_us, start_us + (first + count) * frame_us
+        inside = events[np.searchsorted(t, begin) : np.searchsorted(t, end)]
+        binned = events_to_frames(
+            inside, height, width, time_window=frame_us, start_time=begin, end_time=end,
+            dtype=np.float32,
+        )  # fmt: skip
+        part = torch.from_numpy(binned[:count, ::-1].copy())  # tonic's [OFF, ON] -> [ON, OFF]
+        parts.append(resize_clip(part, crop))
+    return take_frames(torch.cat(parts), 0, frames)
 
 
 def _split(labels: np.ndarray, train_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -101,19 +112,7 @@ def dvs_transfer(
     The KTH videos the simulator records, and their frames and crop, are the pre-training's
     (``pretrain``'s settings). ``resume`` continues the pre-training from its checkpoint; fine-tuning is short and reruns.
     """
-    # ---- 1. the ConvNet+RCN trained on KTH with EDR ------------------------------------------
-    pretrain_dir = out_dir / "pretrain"
-    pretrain_dir.mkdir(parents=True, exist_ok=True)
-    model, pretrained = pretrain(out_dir=pretrain_dir, seed=seed, resume=resume)
-    edr = model.representation
-    if not isinstance(edr, EDR) or edr.out_channels(1) != 2:
-        raise ValueError(
-            "DVS transfer needs a network trained on EDR with one ON/OFF pair per pixel "
-            "(representation=edr with color gray or gray video, one timescale or combine=sum)"
-        )
-    backbone = model.backbone
-
-    # ---- 2. event recordings, as [ON, OFF] frames -------------------------------------------
+    # ---- 1. event recordings, as [ON, OFF] frames: checked before any training -------------
     sim = DVSSimulator(**(simulator or {}))
     kth = kth_settings(pretrain)
     videos: Callable[..., VideoSet] = kth["videos"]
@@ -126,13 +125,14 @@ def dvs_transfer(
         recordings = list_recordings(dvs_root, classes)
         fingerprint = files_fingerprint([p for p, _ in recordings], Path(dvs_root))
         for path, label in tqdm(recordings, desc="reading recordings", unit="file"):
-            events = read_recording(path)
-            h, w = _sensor_size(events, path)
-            clips.append(_event_clip(events, h, w, sim.frame_us, frames, crop))
+            events = read_recording(path, duration_us=frames * sim.frame_us)  # what is used
+            h, w = sensor_of(path, events)
+            start = int(events["t"][0])
+            clips.append(_event_clip(events, h, w, sim.frame_us, frames, crop, start))
             labels.append(label)
     else:
         source_name = f"DVS simulator on {streams_per_class} videos per class of {root}"
-        fingerprint = pretrained["data/fingerprint"]
+        fingerprint = None  # the pre-training's videos: known once it has run
         frame_source = VideoSource(
             cache_dir, size=tuple(kth["resize"]), gray=True, max_frames=kth["max_frames"]
         )
@@ -154,6 +154,19 @@ def dvs_transfer(
         raise ValueError(
             f"{len(labels_np)} recordings are too few for a {train_fraction:.0%} split"
         )
+
+    # ---- 2. the ConvNet+RCN trained on KTH with EDR ------------------------------------------
+    pretrain_dir = out_dir / "pretrain"
+    pretrain_dir.mkdir(parents=True, exist_ok=True)
+    model, pretrained = pretrain(out_dir=pretrain_dir, seed=seed, resume=resume)
+    edr = model.representation
+    if not isinstance(edr, EDR) or edr.out_channels(1) != 2:
+        raise ValueError(
+            "DVS transfer needs a network trained on EDR with one ON/OFF pair per pixel "
+            "(representation=edr with color gray or gray video, one timescale or combine=sum)"
+        )
+    backbone = model.backbone
+    fingerprint = fingerprint or pretrained["data/fingerprint"]
 
     # ---- 3. straight in, then fine-tuned ------------------------------------------------------
     zero_shot = _predict(backbone, clips_t[test_idx])

@@ -7,6 +7,12 @@ non-zero entries), ``bits_per_s`` and ``sparsity`` (the fraction of zero outputs
 priced as an address-event stream: each carries its address (x, y and channel, i.e. polarity
 and timescale) and a timestamp, and a graded event also its value. Frames (``FDR``) are priced
 as a frame camera sends them: every pixel of every frame at 8 bits per channel.
+
+With ``events=<file>`` (any format :mod:`edr.data.events` reads), a real camera's recording
+is measured too, as the row ``camera``: its events/s; its bits/s in the paper's model (address
++ timestamp, as above) and in the file's own bytes per event (``file_bits_per_s``); its events
+per pixel per frame interval and its sparsity, binned at ``fps``. The file is streamed in
+chunks: memory stays bounded whatever its length.
 """
 
 from __future__ import annotations
@@ -14,12 +20,22 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import numpy as np
 import torch
 
+from edr.data.events import (
+    detect_format,
+    iter_recording,
+    recording_sensor_size,
+    sensor_of,
+    write_recording,
+)
 from edr.data.synthetic import video_or_scene
-from edr.representations import FDR, Representation
+from edr.representations import FDR, DVSCamera, Representation
+from edr.representations.base import to_gray
+from edr.representations.dvs import EVENT_DTYPE
 from edr.validate import ExistingFile, PositiveFloat, PositiveInt
 
 log = logging.getLogger(__name__)
@@ -37,7 +53,71 @@ def stream_cost(
         "events_per_s": events / seconds,
         "bits_per_s": events * bits_per_event / seconds,
         "bits_per_event": float(bits_per_event),
+        "events_per_pixel_frame": events / (out.shape[0] * out.shape[-2] * out.shape[-1]),
         "sparsity": float((out == 0).float().mean()),
+    }
+
+
+def events_of_output(
+    rep: Representation, clip: torch.Tensor, out: torch.Tensor, fps: float
+) -> np.ndarray | None:
+    """The events a representation's output stands for (EVENT_DTYPE), or None where it holds
+    no ON/OFF events: the DVS simulator's own (timed within the frame interval), or a counting
+    [ON, OFF] output's (a hard EDR: each count an event at its frame's time)."""
+    if isinstance(rep, DVSCamera):
+        return rep.simulator.simulate(to_gray(clip.unsqueeze(0), channel_dim=2)[0, :, 0].numpy())
+    counts = out.detach().cpu()  # (T', 2, H, W)
+    if isinstance(rep, FDR) or counts.shape[1] != 2 or not torch.equal(counts, counts.round()):
+        return None
+    k, channel, y, x = (c.numpy() for c in torch.nonzero(counts > 0, as_tuple=True))
+    repeats = counts[counts > 0].long().numpy()
+    listed = np.zeros(int(repeats.sum()), EVENT_DTYPE)
+    first = clip.shape[0] - counts.shape[0]  # frames the output starts after
+    listed["t"] = np.repeat(np.floor((k + first) * 1e6 / fps).astype(np.int64), repeats)
+    listed["x"], listed["y"] = np.repeat(x, repeats), np.repeat(y, repeats)
+    listed["p"] = np.repeat(1 - channel, repeats)  # [ON, OFF] -> p 1 ON
+    return np.sort(listed, order="t", kind="stable")
+
+
+def recording_cost(path: str | Path, fps: float, timestamp_bits: int) -> dict[str, Any]:
+    """A real recording's rates (``stream_cost``'s, plus the file's own bits per event) and its
+    ``data/*`` entries. Sparsity: the share of (frame interval, polarity, y, x) bins without an
+    event, counted chunk by chunk (a bin that spans two chunks is carried over)."""
+    path = Path(path)
+    frame_us = 1e6 / fps
+    height = width = 0
+    count, first, last, filled = 0, 0, 0, 0
+    carry = np.zeros(0, np.int64)  # keys of the last frame interval seen
+    for chunk in iter_recording(path):
+        if not count:
+            height, width = sensor_of(path, chunk)
+            first = int(chunk["t"][0])
+        frame = (chunk["t"] - first) // frame_us
+        keys = ((frame.astype(np.int64) * 2 + chunk["p"]) * height + chunk["y"]) * width + chunk[
+            "x"
+        ]
+        bins = np.unique(np.concatenate([carry, keys]))
+        filled += len(bins) - len(carry)
+        carry = bins[bins >= int(frame[-1]) * 2 * height * width]
+        count, last = count + len(chunk), int(chunk["t"][-1])
+    seconds = (last - first + 1) / 1e6
+    frames = max(1, int(np.ceil((last - first + 1) / frame_us)))
+    bits_per_event = math.ceil(math.log2(2 * height * width)) + timestamp_bits
+    file_bits = 8 * path.stat().st_size / count
+    return {
+        "camera/events_per_s": count / seconds,
+        "camera/bits_per_s": count * bits_per_event / seconds,
+        "camera/bits_per_event": float(bits_per_event),
+        "camera/file_bits_per_s": count * file_bits / seconds,
+        "camera/file_bits_per_event": file_bits,
+        "camera/events_per_pixel_frame": count / (frames * height * width),
+        "camera/sparsity": 1 - filled / (frames * 2 * height * width),
+        "data/events_file": path.name,
+        "data/events_format": detect_format(path).name,
+        "data/events_sensor": f"{width}x{height}",
+        "data/events_sensor_stated": recording_sensor_size(path) is not None,
+        "data/events_count": count,
+        "data/events_seconds": seconds,
     }
 
 
@@ -53,8 +133,16 @@ def event_camera(
     fps: PositiveFloat = 25.0,
     timestamp_bits: PositiveInt = 32,
     value_bits: PositiveInt = 16,
+    events: ExistingFile | None = None,
+    save_events: Literal[".raw", ".aedat4", ".aedat", ".npz"] | None = None,
 ) -> dict[str, Any]:
-    """Run every representation on one clip; returns its data rates and sparsity."""
+    """Run every representation on one clip, and measure a real recording (``events``) beside
+    them; returns their data rates and sparsity. ``save_events`` (a format's suffix) writes the
+    events of the DVS simulator and of a hard-threshold EDR into the run folder,
+    ``<name>_events<suffix>``, for other event tools."""
+    # ---- a real camera's recording, checked before the clip ------------------------------------
+    camera = recording_cost(events, fps, timestamp_bits) if events else {}
+
     # ---- the clip ----------------------------------------------------------------------------
     clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
 
@@ -68,11 +156,22 @@ def event_camera(
                 "events_per_s": float("nan"),
                 "bits_per_s": out[0].numel() * 8 * fps,
                 "bits_per_event": float("nan"),
+                "events_per_pixel_frame": float("nan"),
                 "sparsity": float((clip == 0).float().mean()),
             }
         else:
             cost = stream_cost(out, out.shape[0] / fps, timestamp_bits, value_bits)
         metrics.update({f"{name}/{key}": value for key, value in cost.items()})
+        if save_events and (listed := events_of_output(rep, clip, out, fps)) is not None:
+            written = write_recording(
+                out_dir / f"{name}_events{save_events}", listed, (height, width)
+            )
+            log.info("%s: %d events written to %s", name, len(listed), written)
         log.info("%s: %.3g events/s, %.3g bits/s, sparsity %.3f", name, cost["events_per_s"],
                  cost["bits_per_s"], cost["sparsity"])  # fmt: skip
-    return metrics
+    if camera:
+        log.info("camera (%s, %s): %.3g events/s, %.3g bits/s (file: %.3g)",
+                 camera["data/events_file"], camera["data/events_sensor"],
+                 camera["camera/events_per_s"], camera["camera/bits_per_s"],
+                 camera["camera/file_bits_per_s"])  # fmt: skip
+    return {**metrics, **camera}

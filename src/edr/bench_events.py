@@ -1,0 +1,48 @@
+"""``edr-bench --events FILE ...``: how fast the suite reads event recordings (events/s), each
+file read whole by :func:`edr.data.events.read_recording` (decoded, checked, sorted): the median
+and the best of ``repeats`` reads after one untimed read (which also compiles the numba
+decoders), and the machine's load average, since a shared machine's median says more about
+its neighbours than about the reader."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from pathlib import Path
+
+from tabulate import tabulate
+
+from edr.atomic import write_json_atomic
+from edr.data.events import detect_format, read_recording
+from edr.records import git_revision, machine_info
+
+
+def run_events_bench(args: argparse.Namespace, repeats: int) -> None:
+    rows = []
+    for path in args.events:
+        events = read_recording(path)  # untimed: page cache, numba's compiled decoders
+        spent = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            read_recording(path)
+            spent.append(time.perf_counter() - start)
+        seconds = statistics.median(spent)
+        rows.append({"file": Path(path).name, "format": detect_format(path).name,
+                     "events": len(events), "bytes": Path(path).stat().st_size,
+                     "seconds": seconds, "events_per_s": len(events) / seconds,
+                     "best_events_per_s": len(events) / min(spent)})  # fmt: skip
+    stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
+    machine = machine_info()
+    record = {"kind": "event_read", "repeats": repeats, "git": git_revision(),
+              "measured_at": stamp, "load_average_1min": os.getloadavg()[0],
+              "machine": machine, "rows": rows}  # fmt: skip
+    out = write_json_atomic(args.out_dir / f"events_{machine['hostname']}_{stamp}.json", record)
+    table = [[r["file"], r["format"], f"{r['events']:,}", f"{r['seconds'] * 1e3:.2f}",
+              f"{r['events_per_s'] / 1e6:.1f}", f"{r['best_events_per_s'] / 1e6:.1f}"]
+             for r in rows]  # fmt: skip
+    header = ["file", "format", "events", "ms a read", "M events/s", "best M events/s"]
+    print(tabulate(table, header, "pipe"))
+    print(f"load average (1 min): {record['load_average_1min']:.1f}")
+    print(f"record: {out}")

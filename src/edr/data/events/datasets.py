@@ -1,0 +1,142 @@
+"""Event files of data sets and of this suite: N-MNIST binary, HDF5 (DSEC, MVSEC), ``.npz``.
+
+- N-MNIST (ATIS, 34x34): 5 bytes an event: x, y, then polarity in bit 7 (1 = ON) and a 23-bit
+  timestamp (µs) in the remaining bits, big-endian.
+- DSEC: datasets ``events/{x,y,t,p}`` (t µs as stored: its ``t_offset`` is not added; p 0/1;
+  blosc-compressed, hence hdf5plugin),
+  Prophesee Gen3.1 640x480.
+- MVSEC: dataset ``davis/left/events`` (N, 4) float64 rows (x, y, t seconds, p -1/1), DAVIS346.
+- ``.npz``: arrays ``t`` (µs), ``x``, ``y``, ``p`` (1 ON, 0 OFF) of equal length, and optionally
+  ``sensor`` = (height, width).
+"""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edr.atomic import atomic_path
+from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of
+
+NMNIST_SENSOR = (34, 34)
+DSEC_SENSOR, MVSEC_SENSOR = (480, 640), (260, 346)
+MVSEC_EVENTS = "davis/left/events"
+
+
+def nmnist_chunks(path: Path) -> Iterator[np.ndarray]:
+    size = path.stat().st_size
+    if size % 5:
+        raise RecordingError(path, "N-MNIST", f"truncated: {size} bytes is not a multiple of 5")
+    if not size:
+        return
+    raw = np.memmap(path, dtype=np.uint8, mode="r").reshape(-1, 5)  # (N, 5)
+    for start in range(0, len(raw), CHUNK_EVENTS):
+        b = raw[start : start + CHUNK_EVENTS].astype(np.int64)
+        t = ((b[:, 2] & 0x7F) << 16) | (b[:, 3] << 8) | b[:, 4]
+        yield events_of(t, b[:, 0], b[:, 1], b[:, 2] >> 7)
+
+
+def _h5py(path: Path) -> Any:
+    try:
+        import h5py
+        import hdf5plugin  # noqa: F401  (registers the blosc filter DSEC's files use)
+    except ImportError:
+        raise RecordingError(
+            path, "HDF5", "reading it needs h5py and hdf5plugin: pip install 'edr[events]'"
+        ) from None
+    return h5py
+
+
+def hdf5_layout(path: Path) -> str:
+    """'DSEC' or 'MVSEC', by the datasets the file holds."""
+    h5py = _h5py(path)
+    try:
+        with h5py.File(path, "r") as f:
+            if all(f"events/{k}" in f for k in "xytp"):
+                return "DSEC"
+            if MVSEC_EVENTS in f:
+                return "MVSEC"
+    except OSError as error:
+        raise RecordingError(path, "HDF5", f"cannot be opened ({error})") from None
+    raise RecordingError(
+        path, "HDF5", f"neither DSEC's events/x,y,t,p nor MVSEC's {MVSEC_EVENTS} is in it"
+    )
+
+
+def hdf5_sensor(path: Path) -> tuple[int, int]:
+    return DSEC_SENSOR if hdf5_layout(path) == "DSEC" else MVSEC_SENSOR
+
+
+def hdf5_chunks(path: Path) -> Iterator[np.ndarray]:
+    layout = hdf5_layout(path)
+    with _h5py(path).File(path, "r") as f:
+        if layout == "DSEC":
+            columns = [f[f"events/{k}"] for k in "txyp"]
+            n = len(columns[0])
+            if any(len(c) != n for c in columns):
+                raise RecordingError(path, "HDF5 (DSEC)", "events/x, y, t, p differ in length")
+            for start in range(0, n, CHUNK_EVENTS):
+                part = slice(start, start + CHUNK_EVENTS)
+                yield events_of(*(np.asarray(c[part]) for c in columns))
+            return
+        rows = f[MVSEC_EVENTS]
+        if rows.ndim != 2 or rows.shape[1] != 4:
+            raise RecordingError(
+                path, "HDF5 (MVSEC)", f"{MVSEC_EVENTS} is {rows.shape}, not (N, 4)"
+            )
+        for start in range(0, len(rows), CHUNK_EVENTS):
+            block = np.asarray(rows[start : start + CHUNK_EVENTS])  # (n, 4): x, y, t s, p ±1
+            t = np.round(block[:, 2] * 1e6).astype(np.int64)
+            yield events_of(t, block[:, 0], block[:, 1], block[:, 3] > 0)
+
+
+def _npz_arrays(path: Path) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path) as data:
+            missing = [k for k in ("t", "x", "y", "p") if k not in data]
+            if missing:
+                raise RecordingError(path, ".npz", f"missing arrays {missing}; expected t, x, y, p")
+            return {k: np.asarray(data[k]) for k in ("t", "x", "y", "p", "sensor") if k in data}
+    except (OSError, EOFError, zipfile.BadZipFile, ValueError) as error:
+        if isinstance(error, RecordingError):
+            raise
+        raise RecordingError(path, ".npz", f"not a readable .npz ({error})") from None
+
+
+def npz_sensor(path: Path) -> tuple[int, int] | None:
+    sensor = _npz_arrays(path).get("sensor")
+    if sensor is None:
+        return None
+    if sensor.shape != (2,) or not np.issubdtype(sensor.dtype, np.integer) or (sensor < 1).any():
+        raise RecordingError(path, ".npz", f"sensor must be (height, width) >= 1, got {sensor}")
+    return int(sensor[0]), int(sensor[1])
+
+
+def npz_chunks(path: Path) -> Iterator[np.ndarray]:
+    arrays = _npz_arrays(path)
+    t, x, y, p = (arrays[k] for k in ("t", "x", "y", "p"))
+    if not len(t) == len(x) == len(y) == len(p) or t.ndim != 1:
+        raise RecordingError(path, ".npz", "t, x, y, p must be 1-D arrays of one length")
+    if not len(t):
+        return  # refused as "no events" by the caller
+    if not (np.issubdtype(t.dtype, np.number) and np.isfinite(t).all()):
+        raise RecordingError(path, ".npz", f"t must hold finite numbers, got {t.dtype}")
+    for name, column in (("x", x), ("y", y)):
+        if not np.issubdtype(column.dtype, np.integer):
+            raise RecordingError(path, ".npz", f"{name} must hold integers, got {column.dtype}")
+        if len(column) and column.max() > np.iinfo(np.int16).max:  # before narrowing to int16
+            raise RecordingError(path, ".npz", f"{name} = {column.max()} outside any sensor")
+    if len(p) and not np.isin(p, (0, 1)).all():
+        raise RecordingError(path, ".npz", "polarity p must be 0 (OFF) or 1 (ON)")
+    yield events_of(t, x, y, p)
+
+
+def write_npz(path: Path, events: np.ndarray, sensor: tuple[int, int]) -> Path:
+    with atomic_path(path) as tmp, tmp.open("wb") as f:
+        np.savez(f, t=events["t"], x=events["x"], y=events["y"], p=events["p"],
+                 sensor=np.array(sensor, np.int64))  # fmt: skip
+    return path

@@ -1,0 +1,180 @@
+"""jAER's and cAER's files: AEDAT 2.0 (DVS128 and DAVIS chips) and AEDAT 3.1 (polarity packets).
+
+AEDAT 2.0: '#' header lines (``# AEChip: <java class>`` names the chip), then big-endian
+(uint32 address, uint32 timestamp µs) pairs.
+- DVS128 (also when no chip is named, as the paper's sensor): polarity in bit 0 (1 = OFF),
+  x in bits 1-7 (mirrored), y in bits 8-14.
+- DAVIS240 / DAVIS346: a DVS event has bits 31 (APS sample) and 10 (IMU / special) clear;
+  polarity bit 11 (1 = ON), x bits 12-21, y bits 22-30 counted from the bottom row.
+AEDAT 3.1: '#' header lines up to ``#!END-HEADER``, then packets: a 28-byte little-endian header
+(type, source, size, ts offset, ts overflow, capacity, number, valid) and its events. Polarity
+packets (type 1): uint32 data (bit 0 valid, bit 1 polarity 1 = ON, y bits 2-16, x bits 17-31)
+and int32 timestamp, extended by ``overflow << 31``. Other packets (frames, IMU) are skipped.
+Both are read memory-mapped, a chunk at a time.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from edr.atomic import atomic_path
+from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of
+
+# jAER chip -> (height, width); the name as it appears in headers, matched case-insensitively
+CHIPS = {"dvs128": (128, 128), "davis240": (180, 240), "davis346": (260, 346),
+         "dvxplorer": (480, 640)}  # fmt: skip
+AEDAT2_CHIP_CLASSES = {"dvs128": "ch.unizh.ini.jaer.chip.retina.DVS128",
+                       "davis240": "eu.seebetter.ini.chips.davis.DAVIS240C",
+                       "davis346": "eu.seebetter.ini.chips.davis.Davis346red"}  # fmt: skip
+PACKET_HEADER = np.dtype([("type", "<i2"), ("source", "<i2"), ("size", "<i4"), ("ts_offset", "<i4"),
+                          ("overflow", "<i4"), ("capacity", "<i4"), ("number", "<i4"),
+                          ("valid", "<i4")])  # fmt: skip
+POLARITY_EVENT = 1
+
+
+def _header(path: Path, end: bytes | None = None) -> tuple[list[str], int]:
+    """The '#' header lines (text) and the byte offset where the data begins."""
+    lines: list[str] = []
+    with path.open("rb") as f:
+        while True:
+            start = f.tell()
+            line = f.readline()
+            if not line.startswith(b"#"):
+                return lines, start
+            lines.append(line.decode("latin-1").rstrip("\r\n"))
+            if end is not None and line.lower().startswith(end.lower()):
+                return lines, f.tell()
+
+
+def _chip(lines: list[str], key: str) -> str | None:
+    """The known chip a header line starting with ``key`` names, or None."""
+    for line in lines:
+        if line.startswith(key):
+            named = re.sub(r"[^a-z0-9]", "", line.lower())
+            return next((chip for chip in CHIPS if chip in named), "unknown")
+    return None
+
+
+def _body(path: Path, offset: int) -> np.ndarray:
+    """The file's bytes from ``offset`` on, memory-mapped (empty when there are none)."""
+    size = path.stat().st_size - offset
+    return (
+        np.memmap(path, dtype=np.uint8, mode="r", offset=offset)
+        if size > 0
+        else np.zeros(0, np.uint8)
+    )
+
+
+AEDAT2_HEADER_END = b"#End Of ASCII Header"  # jAER's last header line, where it writes one
+
+
+def aedat2_chip(path: Path) -> str:
+    """The AEDAT 2.0 file's chip: a key of CHIPS (DVS128 when none is named)."""
+    chip = _chip(_header(path, AEDAT2_HEADER_END)[0], "# AEChip:") or "dvs128"
+    if chip not in AEDAT2_CHIP_CLASSES:
+        raise RecordingError(
+            path,
+            "AEDAT 2.0",
+            f"its chip is not one this reader knows ({', '.join(AEDAT2_CHIP_CLASSES)})",
+        )
+    return chip
+
+
+def aedat2_sensor(path: Path) -> tuple[int, int]:
+    return CHIPS[aedat2_chip(path)]
+
+
+def aedat2_chunks(path: Path) -> Iterator[np.ndarray]:
+    """An AEDAT 2.0 file's DVS events, a chunk at a time (EVENT_DTYPE, as stored)."""
+    chip = aedat2_chip(path)
+    height = CHIPS[chip][0]
+    lines, offset = _header(path, AEDAT2_HEADER_END)
+    if not lines or not lines[0].startswith("#!AER-DAT2"):
+        raise RecordingError(path, "AEDAT 2.0", "its first line is not '#!AER-DAT2.0'")
+    body = _body(path, offset)
+    if len(body) % 8:
+        raise RecordingError(
+            path, "AEDAT 2.0", f"truncated: {len(body)} bytes of events is not a multiple of 8"
+        )
+    words = body.view(">u4").reshape(-1, 2)  # (N, 2): address, timestamp
+    for start in range(0, len(words), CHUNK_EVENTS):
+        address = words[start : start + CHUNK_EVENTS, 0].astype(np.int64)
+        t = words[start : start + CHUNK_EVENTS, 1].astype(np.int64)
+        if chip == "dvs128":
+            x, y, p = 127 - ((address >> 1) & 0x7F), (address >> 8) & 0x7F, 1 - (address & 1)
+        else:
+            dvs = (((address >> 31) & 1) == 0) & (((address >> 10) & 1) == 0)
+            address, t = address[dvs], t[dvs]
+            x, y = (address >> 12) & 0x3FF, height - 1 - ((address >> 22) & 0x1FF)
+            p = (address >> 11) & 1
+        yield events_of(t, x, y, p)
+
+
+def write_aedat2(
+    path: str | Path, events: np.ndarray, sensor: tuple[int, int] = (128, 128)
+) -> Path:
+    """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) as AEDAT 2.0, naming the smallest
+    jAER chip that holds the sensor (DVS128, DAVIS240, DAVIS346)."""
+    path = Path(path)
+    chip = next(
+        (c for c in AEDAT2_CHIP_CLASSES if CHIPS[c][0] >= sensor[0] and CHIPS[c][1] >= sensor[1]),
+        None,
+    )
+    if chip is None:
+        raise ValueError(f"{path}: AEDAT 2.0 holds sensors up to DAVIS346's 346x260; got {sensor}")
+    height = CHIPS[chip][0]
+    x, y = events["x"].astype(np.uint32), events["y"].astype(np.uint32)
+    p = events["p"].astype(np.uint32)
+    if chip == "dvs128":
+        address = ((127 - x) << 1) | (y << 8) | (1 - p)
+    else:
+        address = (x << 12) | ((height - 1 - y) << 22) | (p << 11)
+    words = np.stack([address, events["t"].astype(np.uint32)], axis=1).astype(">u4")  # (N, 2)
+    header = (
+        f"#!AER-DAT2.0\r\n# This is a raw AE data file created by edr\r\n"
+        f"# AEChip: {AEDAT2_CHIP_CLASSES[chip]}\r\n{AEDAT2_HEADER_END.decode()}\r\n"
+    )
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(header.encode() + words.tobytes())
+    return path
+
+
+def aedat31_sensor(path: Path) -> tuple[int, int] | None:
+    chip = _chip(_header(path, b"#!END-HEADER")[0], "#Source")
+    return CHIPS.get(chip or "")
+
+
+def aedat31_chunks(path: Path) -> Iterator[np.ndarray]:
+    """An AEDAT 3.1 file's polarity events, a packet at a time (EVENT_DTYPE)."""
+    lines, offset = _header(path, b"#!END-HEADER")
+    if not lines or not lines[-1].startswith("#!END-HEADER"):
+        raise RecordingError(path, "AEDAT 3.1", "its header never ends ('#!END-HEADER' missing)")
+    body = _body(path, offset)
+    at = 0
+    while at < len(body):
+        if at + PACKET_HEADER.itemsize > len(body):
+            raise RecordingError(
+                path, "AEDAT 3.1", f"truncated packet header at byte {offset + at}"
+            )
+        head = body[at : at + PACKET_HEADER.itemsize].view(PACKET_HEADER)[0]
+        size, number = int(head["size"]), int(head["number"])
+        at += PACKET_HEADER.itemsize
+        end = at + size * number
+        if size < 1 or number < 0 or end > len(body):
+            raise RecordingError(
+                path, "AEDAT 3.1", f"truncated or corrupt packet at byte {offset + at - 28}"
+            )
+        if head["type"] == POLARITY_EVENT:
+            if size != 8:
+                raise RecordingError(path, "AEDAT 3.1", f"polarity events of {size} bytes, not 8")
+            words = body[at:end].view("<u4").reshape(-1, 2)  # (N, 2): data, timestamp
+            data = words[:, 0].astype(np.int64)
+            valid = (data & 1) == 1
+            data = data[valid]
+            t = (int(head["overflow"]) << 31) | words[valid, 1].astype(np.int64)
+            yield events_of(t, data >> 17, (data >> 2) & 0x7FFF, (data >> 1) & 1)
+        at = end

@@ -1,0 +1,201 @@
+"""One reader for every event format, writers for four, and the recordings of a folder.
+
+The format comes from the file's first bytes (its magic or header), then from its suffix.
+Every reader returns ``EVENT_DTYPE`` events (t µs, x, y, p with 1 = ON) sorted by time, checked
+chunk by chunk (:mod:`edr.data.events.checks`): a bad file is one line naming the file, the
+format found and what is wrong.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edr.data.events import datasets, jaer, prophesee
+from edr.data.events.checks import EVENT_DTYPE, MAX_SIDE, Checked, RecordingError, joined
+from edr.validate import ConfigError
+
+
+@dataclass(frozen=True)
+class EventFormat:
+    """A format: its name, suffixes, how to find its sensor and decode it, how to write it."""
+
+    name: str
+    suffixes: tuple[str, ...]
+    sensor: Callable[[Path], tuple[int, int] | None]
+    chunks: Callable[[Path], Iterator[np.ndarray]]
+    write: Callable[[Path, np.ndarray, tuple[int, int]], Path] | None = None
+
+
+def _faery(name: str) -> Callable[[Path], Iterator[np.ndarray]]:
+    return lambda path: prophesee.faery_chunks(path, name)
+
+
+def _faery_writer(name: str) -> Callable[[Path, np.ndarray, tuple[int, int]], Path]:
+    return lambda path, events, sensor: prophesee.write_with_faery(path, events, sensor, name)
+
+
+FORMATS = {
+    f.name: f
+    for f in (
+        EventFormat("AEDAT 2.0", (".aedat", ".dat"), jaer.aedat2_sensor, jaer.aedat2_chunks,
+                    jaer.write_aedat2),
+        EventFormat("AEDAT 3.1", (".aedat", ".aedat3"), jaer.aedat31_sensor, jaer.aedat31_chunks),
+        EventFormat("AEDAT 4", (".aedat4",), prophesee.aedat4_sensor, _faery("AEDAT 4"),
+                    _faery_writer("AEDAT 4")),
+        EventFormat("EVT 2.0", (".raw",), prophesee.prophesee_sensor, _faery("EVT 2.0")),
+        EventFormat("EVT 3.0", (".raw",), prophesee.prophesee_sensor, prophesee.evt3_chunks,
+                    _faery_writer("EVT 3.0")),
+        EventFormat("DAT", (".dat",), prophesee.prophesee_sensor, prophesee.dat_chunks),
+        EventFormat("N-MNIST", (".bin",), lambda path: datasets.NMNIST_SENSOR,
+                    datasets.nmnist_chunks),
+        EventFormat("HDF5", (".h5", ".hdf5"), datasets.hdf5_sensor, datasets.hdf5_chunks),
+        EventFormat(".npz", (".npz",), datasets.npz_sensor, datasets.npz_chunks,
+                    datasets.write_npz),
+    )
+}  # fmt: skip
+RECORDING_SUFFIXES = tuple(sorted({s for f in FORMATS.values() for s in f.suffixes}))
+WRITE_SUFFIXES = {".raw": "EVT 3.0", ".aedat4": "AEDAT 4", ".aedat": "AEDAT 2.0", ".npz": ".npz"}
+MAGIC = {b"#!AER-DAT2": "AEDAT 2.0", b"#!AER-DAT3": "AEDAT 3.1", b"#!AER-DAT4": "AEDAT 4",
+         b"\x89HDF\r\n\x1a\n": "HDF5", b"PK\x03\x04": ".npz"}  # fmt: skip
+HEADERLESS = {".bin": "N-MNIST", ".dat": "DAT"}  # formats known by their suffix alone
+
+
+def detect_format(path: str | Path) -> EventFormat:
+    """The file's format: its magic or header first, then its suffix."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            head = f.read(16)
+    except OSError as error:
+        raise RecordingError(path, "event file", f"cannot be read ({error.strerror})") from None
+    if not head:
+        raise RecordingError(path, "event file", "empty (0 bytes)")
+    found = next((name for magic, name in MAGIC.items() if head.startswith(magic)), None)
+    if found is None and head.startswith(b"%"):
+        found = prophesee.evt_version(path) or ("DAT" if path.suffix == ".dat" else None)
+        if found is None:
+            raise RecordingError(
+                path, "Prophesee RAW", "its '%' header states no EVT version ('% evt 3.0')"
+            )
+    if found is None:
+        found = HEADERLESS.get(path.suffix.lower())
+    if found is None:
+        raise RecordingError(
+            path, "event file",
+            f"no known header or magic, and {path.suffix or 'no suffix'} is not a headerless "
+            f"format ({', '.join(HEADERLESS)}); readable: {', '.join(FORMATS)}",
+        )  # fmt: skip
+    return FORMATS[found]
+
+
+def recording_sensor_size(path: str | Path) -> tuple[int, int] | None:
+    """(height, width) of the recording's sensor where the file states it, else None."""
+    path = Path(path)
+    return detect_format(path).sensor(path)
+
+
+def _unreadable_is_one_line(path: Path, name: str, read: Callable[[Path], Any]) -> Any:
+    """``read(path)``, with a file that fails to read (OSError, EOFError, a decoder's
+    ValueError) as one line naming it."""
+    try:
+        return read(path)
+    except RecordingError:
+        raise
+    except (OSError, EOFError, ValueError) as error:
+        raise RecordingError(path, name, f"cannot be read ({error})") from None
+
+
+def _decoded(path: Path, fmt: EventFormat) -> Iterator[np.ndarray]:
+    """``fmt``'s chunks of ``path``, a read failure as one line (see above)."""
+    chunks = fmt.chunks(path)
+    while True:
+        chunk = _unreadable_is_one_line(path, fmt.name, lambda _: next(chunks, None))
+        if chunk is None:
+            return
+        yield chunk
+
+
+def iter_recording(path: str | Path, duration_us: float | None = None) -> Iterator[np.ndarray]:
+    """A recording's events, checked, a chunk at a time (bounded memory); with ``duration_us``
+    only those before its first event's time + ``duration_us``, and decoding stops there."""
+    path = Path(path)
+    fmt = detect_format(path)
+    checked = Checked(path, fmt.name, _unreadable_is_one_line(path, fmt.name, fmt.sensor))
+    end: float | None = None
+    for chunk in _decoded(path, fmt):
+        if fmt.name == ".npz":  # the suite's own lists may come unsorted
+            chunk = np.sort(chunk, order="t", kind="stable")
+        checked.check(chunk)
+        if duration_us is None or not len(chunk):
+            yield chunk
+            continue
+        end = int(chunk["t"][0]) + duration_us if end is None else end
+        inside = chunk[: np.searchsorted(chunk["t"], end)]
+        yield inside
+        if len(inside) < len(chunk):
+            return
+    if not checked.count:
+        raise checked.fail("no events" + (" (a header only)" if path.stat().st_size else ""))
+
+
+def read_recording(path: str | Path, duration_us: float | None = None) -> np.ndarray:
+    """Events (N,) EVENT_DTYPE of one recording of any supported format, sorted by time; with
+    ``duration_us``, only its first ``duration_us`` microseconds are decoded."""
+    chunks = [c for c in iter_recording(path, duration_us) if len(c)]
+    return joined(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
+
+
+def sensor_of(path: str | Path, events: np.ndarray) -> tuple[int, int]:
+    """(height, width): the sensor the file states, else the span of its events."""
+    stated = recording_sensor_size(path)
+    if stated:
+        return stated
+    if not len(events):
+        raise RecordingError(path, detect_format(path).name, "no events, and no sensor size")
+    return int(events["y"].max()) + 1, int(events["x"].max()) + 1
+
+
+def write_recording(path: str | Path, events: np.ndarray, sensor: tuple[int, int]) -> Path:
+    """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) into a file whose suffix picks the
+    format: ``.raw`` EVT 3.0, ``.aedat4`` AEDAT 4, ``.aedat`` AEDAT 2.0, ``.npz``."""
+    path = Path(path)
+    name = WRITE_SUFFIXES.get(path.suffix.lower())
+    if name is None:
+        raise ValueError(
+            f"{path}: cannot write {path.suffix or 'no suffix'}; writable: "
+            + ", ".join(f"{s} ({n})" for s, n in WRITE_SUFFIXES.items())
+        )
+    height, width = sensor
+    if not (0 < height <= MAX_SIDE and 0 < width <= MAX_SIDE):
+        raise ValueError(f"{path}: sensor (height, width) must lie in 1..{MAX_SIDE}, got {sensor}")
+    if len(events):
+        Checked(path, name, (height, width)).check(np.sort(events, order="t", kind="stable"))
+    writer = FORMATS[name].write
+    assert writer is not None
+    return writer(path, np.sort(events, order="t", kind="stable"), (height, width))
+
+
+def list_recordings(root: str | Path, classes: tuple[str, ...]) -> list[tuple[Path, int]]:
+    """(file, label) for every recording under ``root/<class>/``, any supported format."""
+    root = Path(root)
+    if not root.is_dir():
+        raise ConfigError(
+            f"event recordings not found under {root}; expected <root>/<action>/<recording>"
+        )
+    found = [
+        (f, label)
+        for label, name in enumerate(classes)
+        for f in sorted((root / name).glob("*"))
+        if f.suffix.lower() in RECORDING_SUFFIXES and f.is_file()
+    ]
+    if not found:
+        raise ConfigError(
+            f"no event recordings ({' '.join(RECORDING_SUFFIXES)}) under {root}/<action>/ "
+            f"for {classes}"
+        )
+    return found
