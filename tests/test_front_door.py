@@ -240,7 +240,7 @@ def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(cli, tmp_path) -
 
 FLOORS = ("tasks", "rl", "models", "representations", "data")  # top down
 ENTRY_POINTS = {"run", "tables", "bench", "bench_atari", "sweeps", "flow_accuracy"}
-ENTRY_POINTS |= {"edr_gradients", "__init__", "report"}
+ENTRY_POINTS |= {"edr_gradients", "bench_events", "representation_statistics", "__init__", "report"}
 TASKS_HELPERS = {"rebuild": "representations"}  # the README names this one exception
 
 
