@@ -229,11 +229,13 @@ def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(cli, tmp_path) -
         f"hydra.sweep.dir={sweep}", cwd=tmp_path,
     )  # fmt: skip
     output = result.stdout + result.stderr
-    assert result.returncode == 2, output[-3000:]
+    assert result.returncode == 1, output[-3000:]
     assert "task.video='/no/clip.avi': expected an existing file" in output
     assert "Traceback" not in output
     last = result.stdout.strip().splitlines()[-1]
-    assert last.endswith(f"sweep {sweep}: 0 skipped, 0 resumed, 1 ran, 1 failed, 0 interrupted")
+    assert last.endswith(
+        f"sweep {sweep}: 0 skipped, 0 resumed, 1 ran, 0 failed, 0 interrupted, 1 refused"
+    )
 
 
 # ---- 10. the README true to the tree -------------------------------------------------------

@@ -59,7 +59,7 @@ def test_a_wheel_in_a_fresh_virtualenv_runs_and_renders_tables(tmp_path) -> None
     assert "kth finished: accuracy" in run.stdout + run.stderr
 
     tables = subprocess.run(
-        [venv / "bin" / "edr-tables", "--out", "paper"], cwd=elsewhere, capture_output=True,
+        [venv / "bin" / "edr-tables", "--runs", "results", "--out", "paper"], cwd=elsewhere, capture_output=True,
         text=True, timeout=600,
     )  # fmt: skip
     assert tables.returncode == 0, tables.stderr[-3000:]

@@ -22,6 +22,11 @@ CHECKPOINT = "checkpoint.pt"
 log = logging.getLogger(__name__)
 
 
+class WriteStopped(OSError):
+    """A write the OS refused part-way; the message names the file, the free space, and that
+    the file there is the previous one, whole."""
+
+
 def save_atomic(payload: object, path: Path) -> None:
     """``torch.save`` so that ``path`` holds the old file or the whole new one, never half.
 
@@ -34,7 +39,7 @@ def save_atomic(payload: object, path: Path) -> None:
         if isinstance(err, RuntimeError) and "inline_container" not in str(err):
             raise  # not a failed write
         free = shutil.disk_usage(path.parent).free / 2**30
-        raise OSError(
+        raise WriteStopped(
             f"could not write {path}: the write stopped part-way ({str(err).strip()[:120]}); "
             f"{free:.1f} GiB free on its disk. A full disk, a quota or a file-size limit? "
             f"The file there, if any, is the previous one, whole"

@@ -80,6 +80,24 @@ def write_record(out_dir: Path, record: dict[str, Any]) -> Path:
     return write_json_atomic(Path(out_dir) / RECORD_NAME, record)
 
 
+def write_last_record(out_dir: Path, record: dict[str, Any]) -> str | None:
+    """Write a run's last record (failed, interrupted) even on a full disk: atomically where the
+    disk takes a new file, else over the record that is there, in place (its blocks are the
+    disk's last free space); None, or the reason it could not be written."""
+    try:
+        write_record(out_dir, record)
+        return None
+    except OSError as error:
+        text = (json.dumps(record, indent=2, default=str) + "\n").encode()
+        try:
+            with open(Path(out_dir) / RECORD_NAME, "r+b") as f:
+                f.write(text)
+                f.truncate()
+            return None
+        except OSError:
+            return f"{error.strerror or error}"
+
+
 class UnreadableRecord(ValueError):
     """A record that is empty, truncated or not JSON; the message names the file and the remedy."""
 

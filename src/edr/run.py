@@ -9,6 +9,8 @@ artifacts. Running the same command again skips a finished run and resumes an in
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import inspect
 import logging
 import os
@@ -29,12 +31,20 @@ from omegaconf import DictConfig, OmegaConf
 
 from edr import CONF_DIR, interrupts
 from edr.atomic import remove_partial_files
-from edr.checkpoints import UnreadableCheckpoint, progress
+from edr.checkpoints import UnreadableCheckpoint, WriteStopped, progress
 from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.overrides import check_command_line
-from edr.records import UnreadableRecord, check_flat, git_revision, machine_info, now, write_record
+from edr.records import (
+    UnreadableRecord,
+    check_flat,
+    git_revision,
+    machine_info,
+    now,
+    write_last_record,
+    write_record,
+)
 from edr.report.published import load_published, lookup
-from edr.store import Resume, hold_folder, log_attempt, plan_attempt
+from edr.store import Resume, hold_folder, log_attempt, plan_attempt, refused_cells
 from edr.validate import ConfigError, PositiveInt, Seed, check_config
 
 # The entry point's own keys, checked like a task's arguments.
@@ -43,6 +53,9 @@ ENTRY_KEYS = {"seed": Seed, "threads": PositiveInt | None, "resume": Resume, "sc
 log = logging.getLogger(__name__)
 
 OmegaConf.register_new_resolver("edr.abspath", lambda p: str(Path(p).expanduser().resolve()))
+# An environment variable's value; its default where it is unset or empty (``EDR_RESULTS=``
+# must not mean the current folder).
+OmegaConf.register_new_resolver("edr.env", lambda name, default: os.environ.get(name) or default)
 OmegaConf.register_new_resolver("edr.job_dir", lambda overrides: job_dirname(overrides))
 OmegaConf.register_new_resolver("edr.first", lambda *choices: next(c for c in choices if c))
 OmegaConf.register_new_resolver("edr.groups", lambda: user_groups(Path(CONF_DIR)))
@@ -156,8 +169,11 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         )
         if interrupted:  # what the next attempt continues from (None: it starts over)
             record["resumes_from"] = progress(out_dir)
-        write_record(out_dir, record)
-        log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
+        unwritten = write_last_record(out_dir, record)
+        if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
+            log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
+        with contextlib.suppress(OSError):
+            log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
         raise
 
     # ---- the finished record -----------------------------------------------------------------
@@ -222,18 +238,25 @@ def main() -> None:
     hydra_app()
 
 
-class _Sweep:
-    refused = 0  # cells of this multirun refused by a check (the exit status says so)
-
-
 class JobFailed(CompactHydraException):
     """A submitit job's config error, handed back to the sweep that waits for the job's result,
     which prints it as one line (a job that exits leaves no result, and without Slurm accounting
     the sweep would wait for it forever)."""
 
 
+# Errors of the disk a run writes to, not of the suite: said in one line, as refusals are.
+DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO}
+
+
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def hydra_app(cfg: DictConfig) -> None:
+    """How a run ends, in one place. Refused (a bad value, an unreadable record or checkpoint,
+    a folder held or of another config): one line, exit 2, before any work. Failed: the record
+    says ``failed`` with the reason (written by :func:`run`); a disk's error is one line, exit 1,
+    anything else its traceback. In a sweep, a refused or failed cell is one line and the sweep
+    goes on to its other cells and its summary line (:class:`edr.store.SweepSummary`), which
+    counts it and ends the sweep with exit 1. Inside a submitit job (Slurm), a refusal goes back
+    to the waiting sweep as one line (:class:`JobFailed`)."""
     in_job = bool(os.environ.get("SUBMITIT_EXECUTOR"))  # a Slurm or local submitit job
     if in_job:  # submitit ignores SIGTERM; scancel, a time limit or preemption end it as kill does
         interrupts.install()
@@ -245,9 +268,17 @@ def hydra_app(cfg: DictConfig) -> None:
             raise JobFailed(str(error)) from None
         if not _in_sweep():
             raise SystemExit(2) from None
-        # a sweep goes on to its next cell and ends with its summary line, counting this one
-        _Sweep.refused += 1
-        log_attempt(Path(cfg.out_dir), "failed", None, error=str(error))
+        refused_cells.append(str(error))
+    except OSError as error:
+        if not (isinstance(error, WriteStopped) or error.errno in DISK_ERRORS or _in_sweep()):
+            raise
+        log.error("failed: %s", " ".join(str(error).split()))
+        if not _in_sweep():
+            raise SystemExit(1) from None
+    except Exception as error:
+        if not _in_sweep():
+            raise
+        log.error("failed: %s: %s", type(error).__name__, " ".join(str(error).split()))
 
 
 def cli() -> None:
@@ -257,8 +288,6 @@ def cli() -> None:
     interrupts.install()
     try:
         main()
-        if _Sweep.refused:
-            raise SystemExit(2)
     except ValueError as error:  # Hydra could not open the run's log file: a folder not writable
         if "Unable to configure handler" not in str(error):
             raise

@@ -14,10 +14,12 @@ Every attempt appends one line to ``attempts.jsonl`` in the folder; at the end o
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
 import socket
+import sys
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, read_write
 
@@ -77,6 +80,12 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
     ``True`` requires something to continue, ``auto`` takes what is there."""
     record_path = out_dir / RECORD_NAME
     record = read_record(record_path) if record_path.is_file() else None
+    nested = next(_nested_records(out_dir), None)
+    if nested is not None:
+        raise ConfigError(
+            f"{out_dir} holds other runs ({nested}): a run writes into its own folder, never "
+            "over a folder of runs; choose another folder (hydra.run.dir or out_dir)"
+        )
     # A task may checkpoint a stage in a subfolder (DVS transfer: pretrain/checkpoint.pt).
     checkpoint = next(out_dir.rglob(CHECKPOINT), None) if out_dir.is_dir() else None
     if resume is False:
@@ -99,11 +108,21 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
     return _plan_for_this_config(record, checkpoint, resume, out_dir)
 
 
+def _nested_records(out_dir: Path) -> Iterator[Path]:
+    """The run records in the folders below ``out_dir``: other runs, not this one's stages."""
+    return (p for p in out_dir.rglob(f"*/{RECORD_NAME}")) if out_dir.is_dir() else iter(())
+
+
 def _plan_for_this_config(
     record: dict[str, Any] | None, checkpoint: Path | None, resume: Resume, out_dir: Path
 ) -> Plan:
     """The plan once ``record`` (if any) is known to be of this config."""
     if record is not None and record.get("status") == "finished":
+        if not isinstance(record.get("metrics"), dict):
+            raise ConfigError(
+                f"{out_dir / RECORD_NAME} says finished but holds no metrics: pass "
+                "resume=false to run it again, or move its folder away"
+            )
         return Plan("skip", record)
     if checkpoint is not None:
         if record is None:
@@ -242,8 +261,41 @@ def _run_each_folder_once(config: DictConfig) -> None:
             config.hydra.overrides.task = kept
 
 
+class RunFolder(Callback):
+    """Before Hydra makes a run's (or a sweep's) folder: one that cannot be made (a read-only
+    disk, a file in its way) is refused in one line, exit 2, instead of Hydra's traceback."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._make(config, "run")
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._make(config, "sweep")
+
+    @staticmethod
+    def _make(config: DictConfig, kind: Literal["run", "sweep"]) -> None:
+        HydraConfig.instance().set_config(config)  # the folder's name reads hydra:runtime
+        folder = Path(config.hydra[kind].dir)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            if not os.access(folder, os.W_OK):  # there, but not this user's to write
+                raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(folder))
+        except OSError as error:
+            print(
+                f"edr-run: cannot create the {kind} folder {folder}: {error.strerror} "
+                f"({error.filename}): make the results folder writable, or move results with "
+                "EDR_RESULTS=<folder> (or paths.results=...)",
+                file=sys.stderr,
+            )
+            raise SystemExit(2) from None
+
+
+# The cells of this process's sweep refused before they had a folder to log an attempt in.
+refused_cells: list[str] = []
+
+
 class SweepSummary(Callback):
-    """At the end of a multirun, one line: how many cells were skipped, resumed, run, failed."""
+    """At the end of a multirun, one line: how many cells were skipped, resumed, run, failed,
+    interrupted or refused; exit status 1 when any failed or was refused."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self.started = time.time()
@@ -253,5 +305,9 @@ class SweepSummary(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
         counts = outcomes_since(sweep_dir, getattr(self, "started", 0.0))
-        order = ("skipped", "resumed", "ran", "failed", "interrupted")
-        log.info("sweep %s: %s", sweep_dir, ", ".join(f"{counts.get(k, 0)} {k}" for k in order))
+        counts["refused"] = len(refused_cells)
+        order = ("skipped", "resumed", "ran", "failed", "interrupted", "refused")
+        shown = [k for k in order if k != "refused" or counts[k]]
+        log.info("sweep %s: %s", sweep_dir, ", ".join(f"{counts.get(k, 0)} {k}" for k in shown))
+        if counts["failed"] or counts["refused"]:
+            raise SystemExit(1)

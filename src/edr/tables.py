@@ -1,20 +1,28 @@
 """``edr-tables``: every table and figure of the paper, regenerated from the records runs and
 benchmarks wrote — the only writer of ``paper/``.
 
-    edr-tables                                        # everything under results/, into paper/
+    edr-tables                                        # paper/ from the records behind it
     edr-tables --runs results/sweeps/kth_demo --out results/sweeps/kth_demo   # one sweep
 
-Each table is written as Markdown and LaTeX and says where its numbers come from (data, scale,
-machine, git, records); published numbers (``paper/published.yaml``) stand beside ours, never in
-their place. Tables without records are skipped, and said to be.
+Plain, it renders the committed scope (:data:`COMMITTED_SCOPE`: the folders ``make paper``
+names) into ``paper/``; with ``--runs``, the folders given, into ``--out`` (required: ``paper/``
+holds the committed scope only, never a mix). Each table is written as Markdown and LaTeX and
+says where its numbers come from (data, scale, machine, git, records); published numbers
+(``paper/published.yaml``) stand beside ours, never in their place. Tables without records are
+skipped, and said to be; every record that cannot be read or placed in a row is listed under the
+tables, with the reason. Refused in one line, exit 2, before anything is written: a scope with
+no records, ``--runs`` without ``--out``, a published-numbers file of the wrong shape.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import pandas as pd
 
 from edr.atomic import write_text_atomic
 from edr.report.atari import table1_atari
@@ -32,18 +40,44 @@ from edr.report.figures import (
     write_figure,
 )
 from edr.report.flow_accuracy import flow_accuracy_table
-from edr.report.published import PUBLISHED, load_published
+from edr.report.published import PUBLISHED, BadPublished, load_published
 from edr.report.recognition import ablation_edr, appendix_a_dvs, table2_ucf101, table4_kth
 from edr.report.render import write_table
-from edr.report.runs import load_runs
+from edr.report.runs import BadRecord, load_runs, read_json, run_file
 from edr.report.speed import atari_cost_table, speed_table
 
+# paper/ as committed: the largest-scale records there are (each folder's command in
+# results/learning/README.md) and the tiny sweeps of Table 2 and Figure 3b (make paper runs them).
+LEARNING = ("table1_pong", "learnable_edr", "kth_demo", "dvs_transfer_demo",
+            "learnable_edr_real", "event_camera_real", "event_camera_recordings")  # fmt: skip
+COMMITTED_SCOPE = (*(Path("results/learning", name) for name in LEARNING),
+                   Path("results/sweeps/tiny/table2"), Path("results/sweeps/tiny/demo"))  # fmt: skip
+PAPER = Path("paper")
+Bench = tuple[Path, dict[str, Any]]
 
-def _bench_records(bench_dir: Path, kind: str) -> list[tuple[Path, dict[str, Any]]]:
-    """``<kind>_*.json`` records in ``bench_dir``, oldest first (by when they were measured:
-    file times change with every checkout)."""
-    found = [(p, json.loads(p.read_text())) for p in bench_dir.glob(f"{kind}_*.json")]
-    return sorted(found, key=lambda item: (item[1].get("measured_at", ""), item[0].name))
+
+class Refused(ValueError):
+    """edr-tables asked for what it does not do; one line, before anything is written."""
+
+
+def _bench_records(
+    bench_dir: Path, kind: str, render: Callable[[Bench], str], skipped: list[str]
+) -> list[tuple[Bench, str]]:
+    """``<kind>_*.json`` records in ``bench_dir`` with what ``render`` makes of each, oldest
+    first (by when they were measured: file times change with every checkout); one that cannot
+    be read, or lacks a field ``render`` reads, goes to ``skipped`` with the reason."""
+    found = []
+    for path in sorted(bench_dir.glob(f"{kind}_*.json")):
+        try:
+            record = read_json(run_file(bench_dir, path.name) or path)
+            if not isinstance(record, dict) or not isinstance(record.get("measured_at", ""), str):
+                raise BadRecord(f"{path.name} is not a bench record")
+            found.append(((path, record), render((path, record))))
+        except BadRecord as error:
+            skipped.append(f"{path}: {error}")
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as error:
+            skipped.append(f"{path}: not a bench record this table reads ({error!r})")
+    return sorted(found, key=lambda item: (item[0][1].get("measured_at", ""), item[0][0].name))
 
 
 def render_all(
@@ -51,16 +85,36 @@ def render_all(
 ) -> dict[str, list[Path]]:
     """Every table and figure that has records; returns what was written, by name (empty where
     nothing was: no records)."""
-    runs = load_runs(roots)
-    published = load_published(published_path)
-    speed = _bench_records(bench_dir, "speed")
-    atari_costs = _bench_records(bench_dir, "atari")
-    flow_accuracy = _bench_records(bench_dir, "flow_accuracy")
+    return render_runs(load_runs(roots), bench_dir, out_dir, load_published(published_path), [])
+
+
+def render_runs(
+    runs: pd.DataFrame,
+    bench_dir: Path,
+    out_dir: Path,
+    published: dict[str, Any],
+    skipped: list[str],
+) -> dict[str, list[Path]]:
+    """:func:`render_all` on loaded records; the bench records it cannot read go to
+    ``skipped``."""
+    speed = _bench_records(
+        bench_dir,
+        "speed",
+        lambda item: speed_table(item[1], published.get("speed", {}), str(item[0])),
+        skipped,
+    )
+    atari_costs = [
+        item for item, _ in _bench_records(bench_dir, "atari", lambda one: atari_cost_table([one]),
+                                           skipped)
+    ]  # fmt: skip
+    flow_accuracy = _bench_records(
+        bench_dir, "flow_accuracy", lambda item: flow_accuracy_table(item[1], str(item[0])), skipped
+    )
     written: dict[str, list[Path]] = {}
     tables = [
         features_table(),
         table1_atari(runs, published),
-        table2_ucf101(runs, published, speed[-1][1] if speed else None),
+        table2_ucf101(runs, published, speed[-1][0][1] if speed else None),
         table3_event_camera(runs, published),
         table4_kth(runs, published),
         appendix_a_dvs(runs, published),
@@ -69,21 +123,14 @@ def render_all(
     for table in tables:
         written[table.name] = write_table(table, out_dir, published) if table.has_content else []
     if speed:
-        path, record = speed[-1]
-        written["table2_speed"] = [
-            write_text_atomic(
-                out_dir / "table2_speed.md",
-                speed_table(record, published.get("speed", {}), str(path)),
-            )
-        ]
+        written["table2_speed"] = [write_text_atomic(out_dir / "table2_speed.md", speed[-1][1])]
     if atari_costs:
         written["atari_edr_cost"] = [
             write_text_atomic(out_dir / "atari_edr_cost.md", atari_cost_table(atari_costs))
         ]
     if flow_accuracy:
-        path, record = flow_accuracy[-1]
         written["flow_accuracy"] = [
-            write_text_atomic(out_dir / "flow_accuracy.md", flow_accuracy_table(record, str(path)))
+            write_text_atomic(out_dir / "flow_accuracy.md", flow_accuracy[-1][1])
         ]
     figures = {
         "figure5_atari_curves": (
@@ -128,18 +175,57 @@ def main(argv: list[str] | None = None) -> None:
         "--runs",
         type=Path,
         action="append",
-        help="a folder of run records (repeatable; default: results/)",
+        help="a folder of run records (repeatable; default: the committed scope, into paper/)",
     )
     parser.add_argument(
         "--bench", type=Path, default=Path("results/bench"), help="edr-bench records"
     )
-    parser.add_argument("--out", type=Path, default=Path("paper"), help="where tables go")
+    parser.add_argument(
+        "--out", type=Path, help="where tables go (default, for the committed scope: paper/)"
+    )
     parser.add_argument("--published", type=Path, default=PUBLISHED, help="published numbers")
     args = parser.parse_args(argv)
-    roots = args.runs or [Path("results")]
-    written = render_all(roots, args.bench, args.out, args.published)
+    try:
+        runs, out_dir, published = _scope(args.runs, args.out, args.published)
+    except (Refused, BadPublished) as error:
+        print(f"edr-tables: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+    skipped: list[str] = []
+    written = render_runs(runs, args.bench, out_dir, published, skipped)
     for name, paths in written.items():
         print(f"{name:30s} " + (", ".join(map(str, paths)) if paths else "no records: skipped"))
+    for row in runs[runs["status"] == "unreadable"].itertuples():
+        skipped.append(f"{row.record}: {row.error}")
+    if skipped:
+        print(f"not read ({len(skipped)}; the records are listed under the tables too):")
+        print("\n".join(f"  {line}" for line in skipped))
+
+
+def _scope(
+    roots: list[Path] | None, out: Path | None, published_path: Path
+) -> tuple[pd.DataFrame, Path, dict[str, Any]]:
+    """(the records, the output folder, the published numbers) edr-tables renders; each way it
+    refuses, :class:`Refused` in one line."""
+    if roots and out is None:
+        raise Refused(
+            "--runs needs --out: paper/ holds the committed scope only (edr-tables with no "
+            "--runs renders it)"
+        )
+    published = load_published(published_path)
+    if not roots:
+        present = [p for p in COMMITTED_SCOPE if p.is_dir()]
+        if present and len(present) < len(COMMITTED_SCOPE):
+            missing = ", ".join(str(p) for p in COMMITTED_SCOPE if p not in present)
+            raise Refused(
+                f"paper/ is rendered from the committed records and the tiny sweeps; {missing} "
+                "not found: `make paper` runs those sweeps, then renders paper/ (your own runs: "
+                "edr-tables --runs DIR --out DIR)"
+            )
+    scope = roots or list(COMMITTED_SCOPE)
+    runs = load_runs([p for p in scope if p.is_dir()])
+    if runs.empty:
+        raise Refused(f"no records found under {', '.join(map(str, scope))}")
+    return runs, out or PAPER, published
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, run_history, unfinished
+from edr.report.runs import cells, finished, placeable, run_history, unfinished
 from edr.rl.settings import INPUT_NAMES
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
@@ -46,9 +46,10 @@ def _steps_to_target_block(done: pd.DataFrame) -> str:
         reached = sorted(s for s in steps if s is not None)
         budget = pd.to_numeric(group["config.task.env_steps"], errors="coerce").max()
         said = ", ".join(f"{s / 1e6:.2f}M" for s in reached) or "none"
+        within = f" within {budget / 1e6:g}M" if pd.notna(budget) else ""
         lines.append(
             f"| {game} | {INPUT_NAMES.get(inputs, inputs)} | {target:g} | {len(reached)} of "
-            f"{len(steps)} within {budget / 1e6:g}M | {said} |"
+            f"{len(steps)}{within} | {said} |"
         )
     if not lines:
         return ""
@@ -70,9 +71,12 @@ def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
     done = finished(runs, "atari").copy()
     if done.empty:
         return done.assign(game=[], input=[])
-    done["game"] = done["config.task.env.game"]
-    done["input"] = done["config.task.env.inputs"]
-    budget = pd.to_numeric(done.get("config.task.env_steps"), errors="coerce")
+    given = done.reindex(columns=["config.task.env.game", "config.task.env.inputs",
+                                  "config.task.env_steps"])  # fmt: skip  # NaN where none says
+    done["config.task.env_steps"] = given["config.task.env_steps"]
+    done["game"] = given["config.task.env.game"]
+    done["input"] = given["config.task.env.inputs"]
+    budget = pd.to_numeric(given["config.task.env_steps"], errors="coerce")
     paper = done["game"].map(_paper_env_steps)
     cut = (done["scale"] == "full") & (budget < paper)
     done.loc[cut, "scale"] = [
@@ -196,7 +200,7 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
 
 
 def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
-    done = atari_runs(runs)
+    done, unplaced = placeable(atari_runs(runs), ["game", "input"])
     grouped = cells(done, list(SCORES.values()), ["game", "input"])
     frame, extra = pd.DataFrame(), ""
     if not grouped.empty:
@@ -236,7 +240,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a run "
             "(30 full games at full scale), each then averaged over seeds (± std).",
         ],
-        unfinished=unfinished(runs, "atari"),
+        unfinished=unfinished(runs, "atari", unplaced),
         extra=extra,
         paper=_paper_rows(published),
         paper_notes=[

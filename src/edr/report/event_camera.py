@@ -11,7 +11,7 @@ import pandas as pd
 
 from edr.report.published import lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, unfinished
+from edr.report.runs import cells, finished, placeable, unfinished
 
 RATES = ("events_per_s", "bits_per_s", "bits_per_event", "events_per_pixel_frame", "sparsity")
 FILE_RATES = ("file_bits_per_s", "file_bits_per_event")  # a real recording's, in its own bytes
@@ -34,6 +34,7 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         }
     )
     metrics = [c for n in names for r in (*RATES, *FILE_RATES) if (c := f"metrics.{n}/{r}") in done]
+    done, unplaced = placeable(done, ["data.video", "data.size"])
     recording = [c for c in RECORDING if c in done]
     grouped = cells(done, metrics, ["data.video", "data.size", *recording])
     measured = grouped.get("data.events_file", pd.Series(index=grouped.index, dtype=object))
@@ -107,7 +108,7 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "sensor (8 bits a pixel at that fps). A sensor marked (events' span) is not stated "
             "by its file.",
         ],
-        unfinished=unfinished(runs, "event_camera"),
+        unfinished=unfinished(runs, "event_camera", unplaced),
         paper=paper,
         paper_notes=[
             f"Source: {lookup(published, 'table3_event_camera', 'source')}. The paper compares "

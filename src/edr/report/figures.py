@@ -4,7 +4,6 @@ exist yet is not drawn."""
 
 from __future__ import annotations
 
-import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -21,7 +20,15 @@ from edr.atomic import atomic_path, save_figure, write_text_atomic
 from edr.report.atari import atari_runs, normalised_scores
 from edr.report.recognition import learnable_runs, without_ablations
 from edr.report.render import provenance
-from edr.report.runs import CELL_KEYS, finished, run_history
+from edr.report.runs import (
+    CELL_KEYS,
+    CONFUSION,
+    PIXEL_RESPONSE,
+    finished,
+    run_file,
+    run_history,
+    run_json,
+)
 from edr.rl.settings import INPUT_NAMES
 
 Draw = Callable[[], "plt.Figure | None"]
@@ -113,6 +120,8 @@ def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
 
     def draw() -> plt.Figure | None:
         games = sorted(done["game"].dropna().unique())
+        if not games:  # records from before the game was recorded: listed under Table 1
+            return None
         fig, axes = plt.subplots(2, len(games), figsize=(4.5 * len(games), 6), squeeze=False)
         drawn = []
         for k, game in enumerate(games):
@@ -234,9 +243,7 @@ def _confusion(done: pd.DataFrame) -> plt.Figure | None:
         return None
     fig, axes = plt.subplots(1, len(cells), figsize=(4.5 * len(cells), 4), squeeze=False)
     for ax, (label, group) in zip(axes[0], cells, strict=True):
-        files = [
-            json.loads((Path(r).parent / "confusion.json").read_text()) for r in group["record"]
-        ]
+        files = [run_json(Path(r).parent, CONFUSION) for r in group["record"]]
         matrix = np.mean([f["matrix"] for f in files], axis=0)
         ax.imshow(matrix, cmap="Blues")
         ax.set_xticks(range(len(files[0]["classes"])), files[0]["classes"], rotation=60, fontsize=7)
@@ -350,7 +357,7 @@ def copy_pixel_response(runs: pd.DataFrame, out_dir: Path) -> list[Path]:
     if done.empty:
         return []
     newest = done.iloc[[-1]]
-    source = Path(newest["record"].iloc[0]).parent / "pixel_response.png"
+    source = run_file(Path(newest["record"].iloc[0]).parent, PIXEL_RESPONSE)  # checked on load
     png = out_dir / "figures" / "figure3b_pixel_response.png"
     with atomic_path(png) as tmp:
         shutil.copyfile(source, tmp)

@@ -10,7 +10,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, unfinished
+from edr.report.runs import cells, finished, placeable, unfinished
 from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
 
 ACCURACY = "metrics.eval/accuracy"
@@ -92,6 +92,7 @@ def _accuracy_rows(
 
 def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done = labelled(finished(runs, "kth", without_ablations))
+    done, unplaced = placeable(done, ["choices.backbone", "choices.representation"])
     labels = ["data.label", "choices.backbone", "choices.representation", "input"]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = (
@@ -130,7 +131,7 @@ def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "same labels and another cell differ in some other setting.",
             SPLIT_IN_TIME_NOTE,
         ],
-        unfinished=unfinished(runs, "kth"),
+        unfinished=unfinished(runs, "kth", unplaced),
         paper=pd.DataFrame(
             [
                 {"Backbone": backbone, "Representation": rep, "Accuracy (%)": cite(acc)}
@@ -152,6 +153,7 @@ def table2_ucf101(
     runs: pd.DataFrame, published: dict[str, Any], speed: dict[str, Any] | None
 ) -> Table:
     done = labelled(finished(runs, "ucf101", without_ablations))
+    done, unplaced = placeable(done, ["choices.representation", "choices.backbone"])
     labels = ["data.label", "choices.representation", "input", "choices.backbone"]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = pd.DataFrame()
@@ -206,7 +208,7 @@ def table2_ucf101(
             "table2_speed.md for every timed row).",
             SPLIT_IN_TIME_NOTE,
         ],
-        unfinished=unfinished(runs, "ucf101"),
+        unfinished=unfinished(runs, "ucf101", unplaced),
         extra=extra,
         paper=pd.DataFrame(
             [
@@ -230,6 +232,7 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         "metrics.pretrain/eval/accuracy",
         "metrics.eval/chance",
     ]
+    done, unplaced = placeable(done, ["choices.backbone", "data.events"])
     grouped = cells(done, metrics, ["choices.backbone", "data.events"])
     frame = pd.DataFrame()
     if not grouped.empty:
@@ -269,7 +272,7 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "Fine-tuned on 70 % of the recordings per class, tested on the other 30 %. "
             "Events: simulated by our DVS simulator unless recordings are named."
         ],
-        unfinished=unfinished(runs, "dvs_transfer"),
+        unfinished=unfinished(runs, "dvs_transfer", unplaced),
         paper=pd.DataFrame(
             [
                 {

@@ -7,12 +7,15 @@ and ``metrics.<name>``.
 
 A table cell aggregates only finished runs that share everything but the seed: the same
 ``cell`` fingerprint, data fingerprint, data source and scale. Failed, running and pre-store
-records are listed, never averaged.
+records are listed, never averaged; so is every record that cannot be read (not JSON, not a
+record, a wrong-typed field, a file it names that is broken or lies outside its run folder) and
+every run folder reached through a symbolic link, each with the reason.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -28,6 +31,100 @@ CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]
 # Columns every frame has, even with no records (or only records from before the store).
 BASE_COLUMNS = ["record", "run_dir", "task", "status", "error", "fingerprint", "seed", "git",
                 "machine", "ended_at", *CELL_KEYS]  # fmt: skip
+
+
+# The files beside a record that a table or figure reads, and the tasks whose finished runs must
+# have them; each is read only if it lies inside its run folder.
+HISTORY, CONFUSION, PIXEL_RESPONSE = "history.json", "confusion.json", "pixel_response.png"
+REQUIRED_FILES = {"dvs_transfer": (CONFUSION,), "representation_demo": (PIXEL_RESPONSE,)}
+MAPPINGS = ("data", "choices", "metrics", "machine", "config", "semantic_config")
+STRINGS = ("task", "status", "error", "fingerprint", "cell", "scale", "git", "ended_at")
+
+
+class BadRecord(ValueError):
+    """A record, or a file it names, that a table cannot use; the message says why."""
+
+
+def run_file(run_dir: Path, name: str) -> Path | None:
+    """``run_dir/name`` if it is a file inside ``run_dir`` (a link may not leave the folder);
+    None if there is none; :class:`BadRecord` otherwise."""
+    path = run_dir / name
+    if not path.is_symlink() and not path.exists():
+        return None
+    try:
+        real = path.resolve(strict=True)
+    except (OSError, RuntimeError) as error:  # a dangling link or a loop
+        raise BadRecord(f"{name}: {error}") from None
+    if not real.is_relative_to(run_dir.resolve()):
+        raise BadRecord(f"{name} links outside its run folder (to {real}): not read")
+    if not real.is_file():
+        raise BadRecord(f"{name} is not a file")
+    return real
+
+
+def read_json(path: Path) -> Any:
+    """The JSON in ``path``; :class:`BadRecord` naming the file for bytes that are not UTF-8,
+    text that is not JSON, or JSON nested past Python's recursion limit."""
+    try:
+        return json.loads(path.read_bytes().decode())
+    except UnicodeDecodeError:
+        raise BadRecord(f"{path.name} is not UTF-8 text") from None
+    except RecursionError:
+        raise BadRecord(f"{path.name} is nested too deeply") from None
+    except (OSError, ValueError) as error:
+        raise BadRecord(f"{path.name} is not JSON ({error})") from None
+
+
+def run_json(run_dir: Path, name: str) -> Any:
+    """The JSON file ``name`` of a run (None if it has none), read only inside its folder."""
+    path = run_file(run_dir, name)
+    return None if path is None else read_json(path)
+
+
+def _check_files(run_dir: Path, record: dict[str, Any]) -> None:
+    """The files beside a record that tables read: present where its task needs them, inside
+    its folder, and of the shape the tables read."""
+    if record.get("status") == "finished":
+        for name in REQUIRED_FILES.get(str(record.get("task")), ()):
+            if run_file(run_dir, name) is None:
+                raise BadRecord(f"finished, but its {name} is missing")
+    run_file(run_dir, PIXEL_RESPONSE)
+    history = run_json(run_dir, HISTORY)
+    if history is not None and not (
+        isinstance(history, list) and all(isinstance(row, dict) for row in history)
+    ):
+        raise BadRecord(f"{HISTORY} is not a list of rows")
+    confusion = run_json(run_dir, CONFUSION)
+    if confusion is not None and not (
+        isinstance(confusion, dict) and {"matrix", "classes"} <= confusion.keys()
+    ):
+        raise BadRecord(f"{CONFUSION} has no matrix and classes")
+
+
+def check_record(record: Any) -> dict[str, Any]:
+    """``record`` if its fields have the types tables read; :class:`BadRecord` naming the first
+    that does not."""
+    if not isinstance(record, dict):
+        raise BadRecord(f"holds a JSON {type(record).__name__}, not a run record")
+    for key in MAPPINGS:
+        if not isinstance(record.get(key, {}), dict):
+            raise BadRecord(f"`{key}` is a {type(record[key]).__name__}, not a mapping")
+    for key in STRINGS:
+        if not isinstance(record.get(key), str | None):
+            raise BadRecord(f"`{key}` is a {type(record[key]).__name__}, not a string")
+    for key in ("data", "choices", "metrics"):
+        nested = [k for k, v in record.get(key, {}).items() if not isinstance(v, Scalar)]
+        if nested:
+            raise BadRecord(f"`{key}` holds values that are not scalars: {nested}")
+    seed = record.get("seed", record.get("config", {}).get("seed"))
+    if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
+        raise BadRecord(f"seed {seed!r} is not an integer")
+    if record.get("status") == "finished" and "metrics" not in record:
+        raise BadRecord("finished, but has no metrics")
+    return record
+
+
+Scalar = int | float | bool | str | None
 
 
 def _machine(record: dict[str, Any]) -> str:
@@ -71,18 +168,52 @@ def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _holds_records(link: Path) -> bool:
+    """Whether ``link`` is a symbolic link to a folder with a run record in it."""
+    try:
+        return link.is_symlink() and next(link.rglob(RECORD_NAME), None) is not None
+    except OSError:  # a link loop
+        return False
+
+
+def _find(root: Path) -> tuple[list[Path], list[dict[str, Any]]]:
+    """(every ``run.json`` under ``root`` that is a file, no link; a row for each link among
+    them and each linked folder that holds records: those are not followed, and said so)."""
+    records, links = [], []
+    for folder, dirs, files in os.walk(root):
+        here = Path(folder)
+        links += [here / name for name in dirs if _holds_records(here / name)]
+        if RECORD_NAME in files:
+            (links if (here / RECORD_NAME).is_symlink() else records).append(here / RECORD_NAME)
+    skipped = [
+        {"record": _shown(link), "status": "unreadable",
+         "error": f"a symbolic link (to {os.path.realpath(link)}): not followed; pass its "
+                  "target with --runs to read it"}
+        for link in links
+    ]  # fmt: skip
+    return records, skipped
+
+
+def _read(path: Path) -> dict[str, Any]:
+    """The table row of the record at ``path``; a row saying why for one that cannot be used."""
+    try:
+        record = check_record(read_json(path))
+        _check_files(path.parent, record)
+        return _row(path, record)
+    except BadRecord as error:
+        return {"record": _shown(path), "status": "unreadable", "error": str(error)}
+    except RecursionError:
+        return {"record": _shown(path), "status": "unreadable", "error": "nested too deeply"}
+
+
 def load_runs(roots: Iterable[str | Path]) -> pd.DataFrame:
-    """Every ``run.json`` under ``roots`` (searched recursively), one row each, oldest first."""
-    paths = sorted(
-        {p.resolve() for root in roots for p in Path(root).rglob(RECORD_NAME)},
-        key=lambda p: p.stat().st_mtime,
-    )
-    rows = []
-    for path in paths:
-        try:
-            rows.append(_row(path, json.loads(path.read_text())))
-        except (OSError, json.JSONDecodeError) as error:
-            rows.append({"record": _shown(path), "status": "unreadable", "error": str(error)})
+    """Every ``run.json`` under ``roots`` (searched recursively, links not followed), one row
+    each, oldest first; a record that cannot be used is a row of status ``unreadable`` with the
+    reason in ``error``."""
+    found = [_find(Path(root)) for root in roots]
+    paths = sorted({p.resolve() for records, _ in found for p in records},
+                   key=lambda p: p.stat().st_mtime)  # fmt: skip
+    rows = [_read(path) for path in paths] + [row for _, links in found for row in links]
     frame = pd.DataFrame(rows)
     return frame.reindex(columns=[*BASE_COLUMNS, *(c for c in frame if c not in BASE_COLUMNS)])
 
@@ -104,13 +235,33 @@ def finished(
     return done.drop_duplicates("fingerprint", keep="last")
 
 
-def unfinished(runs: pd.DataFrame, task: str) -> pd.DataFrame:
-    """The runs of ``task`` that are not finished (failed, running, legacy), and every record
-    that could not be read (whose task nobody knows): to list under a table, not average."""
+def placeable(done: pd.DataFrame, labels: Sequence[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(the runs that have every one of a table's ``labels``, the others as ``not placed``
+    rows naming what they lack): a record from before a field existed gets no ``nan`` row."""
+    if done.empty:
+        return done, done
+    missing = done.reindex(columns=list(labels)).isna()
+    lacking = missing.any(axis=1)
+    unplaced = done[lacking].assign(
+        status="not placed",
+        error=[
+            "finished, but lacks " + ", ".join(c for c in labels if row[c]) + ", which the "
+            "table's rows are by"
+            for _, row in missing[lacking].iterrows()
+        ],
+    )
+    return done[~lacking], unplaced
+
+
+def unfinished(runs: pd.DataFrame, task: str, unplaced: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The runs of ``task`` that are not finished (failed, running, legacy), those a table
+    could not place (:func:`placeable`), and every record that could not be read (whose task
+    nobody knows): to list under a table, not average."""
     if runs.empty:
         return runs
     mine = (runs["task"] == task) & (runs["status"] != "finished")
-    return runs[mine | (runs["status"] == "unreadable")]
+    listed = runs[mine | (runs["status"] == "unreadable")]
+    return listed if unplaced is None or unplaced.empty else pd.concat([unplaced, listed])
 
 
 def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> pd.DataFrame:
@@ -139,5 +290,4 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
 
 def run_history(record: str) -> list[dict[str, Any]]:
     """The rows of a run's ``history.json`` (beside its record); none if it has none."""
-    file = Path(record).parent / "history.json"
-    return json.loads(file.read_text()) if file.is_file() else []
+    return run_json(Path(record).parent, HISTORY) or []

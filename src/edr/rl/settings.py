@@ -49,6 +49,14 @@ class EnvSettings:
         """The game's name, or the user's env id."""
         return self.env_id or self.game
 
+    @property
+    def modules(self) -> tuple[str, ...]:
+        """Every module that making these envs imports, and so runs: ``env_module``, and the
+        ``module`` of an id in gymnasium's ``module:Env-v0`` form (``gym.make`` imports it)."""
+        ids = [i for i in (self.env_id, self.game) if isinstance(i, str) and ":" in i]
+        named = (self.env_module, *(i.split(":")[0] for i in ids))
+        return tuple(dict.fromkeys(m for m in named if m))
+
     def resolved_backend(self) -> Backend:
         """``auto``: EnvPool steps ALE games; a gymnasium env of your own runs serially."""
         if self.backend != "auto":

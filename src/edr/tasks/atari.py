@@ -30,6 +30,7 @@ from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
+    UnreadableCheckpoint,
     load_checkpoint,
     restore,
     save_atomic,
@@ -38,7 +39,7 @@ from edr.checkpoints import (
 from edr.models.dead_units import DeadUnits
 from edr.models.paac import PAACNetwork
 from edr.rebuild import UntrustedRecord, instantiate_from_record
-from edr.records import read_record
+from edr.records import UnreadableRecord, read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.loss import n_step_returns, paac_loss
@@ -381,7 +382,8 @@ def evaluate_checkpoint(
     ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
     (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
     the metrics. The record builds only the suite's own parts (:mod:`edr.rebuild`), and a
-    module it names (``task.env.env_module``) is imported only with ``trust_env_module``.
+    module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is
+    imported only with ``trust_env_module``.
     """
     run_dir = Path(run_dir)
     record = read_record(run_dir / "run.json")
@@ -390,13 +392,18 @@ def evaluate_checkpoint(
             f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
             "updates and where Ctrl-C or SIGTERM stops it"
         )
+    node = record.get("config", {})
+    if not isinstance(node, dict) or not isinstance(node.get("task"), dict):
+        raise UnreadableRecord(f"{run_dir / 'run.json'} has no config.task to rebuild the run from")
     # train_paac's arguments, EDR built
-    task = instantiate_from_record(record["config"]["task"], "config.task").keywords
+    task = instantiate_from_record(node["task"], "config.task").keywords
     env = task["env"]
-    if env.env_module is not None and not trust_env_module:
+    if env.modules and not trust_env_module:
         raise UntrustedRecord(
-            f"{run_dir / 'run.json'} names task.env.env_module={env.env_module}: importing it "
-            "runs its code; pass --trust-env-module (trust_env_module=True) if you trust it"
+            f"{run_dir / 'run.json'} names the module {', '.join(env.modules)} (task.env: "
+            f"env_module={env.env_module}, env_id={env.env_id}, game={env.game}): making its env "
+            "imports it, which runs its code; pass --trust-env-module (trust_env_module=True) "
+            "if you trust it"
         )
     evaluation = task["evaluation"]
     env_kwargs = _env_kwargs(env)
@@ -430,6 +437,6 @@ if __name__ == "__main__":
     args = parser.parse_args()
     try:
         metrics = evaluate_checkpoint(args.run_dir, args.plays, args.trust_env_module)
-    except (UntrustedRecord, FileNotFoundError) as error:
+    except (UntrustedRecord, UnreadableRecord, UnreadableCheckpoint, FileNotFoundError) as error:
         parser.exit(2, f"{parser.prog}: {error}\n")
     print(json.dumps(metrics, indent=1))
