@@ -56,7 +56,7 @@ def test_job_folder_names_come_from_semantic_overrides() -> None:
         ("task.resize=[40,30,1]", "task.resize=[40, 30, 1]: expected a list of 2 values"),
         (
             "task.videos.train_fraction=1.5",
-            "task.videos.train_fraction=1.5: expected a number <= 1",
+            "task.videos.train_fraction=1.5: expected a number < 1",
         ),
         ("task.logger=nope", "task.logger='nope': expected one of csv, tensorboard"),
         ("threads=0", "threads=0: expected a number >= 1"),

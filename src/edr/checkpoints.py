@@ -17,8 +17,10 @@ import numpy as np
 import torch
 
 from edr.atomic import atomic_path
+from edr.validate import ConfigError
 
 CHECKPOINT = "checkpoint.pt"
+DATA_FINGERPRINT = "data_fingerprint"  # the content fingerprint of the data it trained on
 log = logging.getLogger(__name__)
 
 
@@ -92,6 +94,21 @@ def restore(state: dict[str, Any], parts: dict[str, Any]) -> None:
     for name, part in parts.items():
         part.load_state_dict(state[name])
     _set_rng_state(state["rng"])
+
+
+class ChangedData(ConfigError):
+    """A checkpoint trained on other data than the run would now continue on."""
+
+
+def check_same_data(state: dict[str, Any], fingerprint: str, path: Path) -> None:
+    """Refuse to continue ``state`` (loaded from ``path``) on data whose content fingerprint
+    differs from the one it was trained on (a video replaced, two classes swapped)."""
+    seen = state.get(DATA_FINGERPRINT)
+    if seen is not None and seen != fingerprint:
+        raise ChangedData(
+            f"{path} was trained on other data (data fingerprint {seen}, now {fingerprint}): "
+            "restore the data it was trained on, or pass resume=false to start over"
+        )
 
 
 def progress(run_dir: Path) -> dict[str, Any] | None:

@@ -45,11 +45,11 @@ from edr.records import (
 )
 from edr.report.published import load_published, lookup
 from edr.store import Resume, hold_folder, log_attempt, plan_attempt, refused_cells
-from edr.validate import ConfigError, PositiveInt, Seed, check_config
+from edr.validate import ConfigError, Seed, Threads, check_config
 
 # The entry point's own keys, checked like a task's arguments.
 INTERNAL_GROUPS = {"hydra", "recognition", "paths"}  # composed by the configs, not picked by users
-ENTRY_KEYS = {"seed": Seed, "threads": PositiveInt | None, "resume": Resume, "scale": str}
+ENTRY_KEYS = {"seed": Seed, "threads": Threads | None, "resume": Resume, "scale": str}
 log = logging.getLogger(__name__)
 
 OmegaConf.register_new_resolver("edr.abspath", lambda p: str(Path(p).expanduser().resolve()))
@@ -192,6 +192,9 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
 
 def headline(metrics: dict[str, Any]) -> str:
     """The one result a reader looks for first, with what chance or random play would score."""
+    if "train/diverged_step" in metrics:  # no accuracy or score: what a network of NaNs gives
+        reason = metrics.get("train/diverged_reason", "the loss is not a number")
+        return f"diverged at training step {metrics['train/diverged_step']} ({reason})"
     if "eval/accuracy" in metrics:
         chance = metrics.get("eval/chance")
         against = f" (chance {100 * chance:.1f} %)" if chance is not None else ""

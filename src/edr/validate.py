@@ -9,6 +9,7 @@ import dataclasses
 import importlib.util
 import inspect
 import math
+import os
 import re
 import types
 import typing
@@ -94,8 +95,33 @@ ModuleName = Annotated[str, Check(_module_problem)]  # importable (not imported 
 Seed = Annotated[int, Range(0, 2**32 - 1)]  # what numpy's and torch's generators take
 
 
+def _path_problem(path: Any) -> str | None:
+    """What the OS refuses before any file is touched: a path or a name in it too long."""
+    text = os.fsencode(os.path.expanduser(str(path)))
+    name_max, path_max = _path_limits()
+    if len(text) >= path_max:
+        return f"a path shorter than {path_max} bytes (this one has {len(text)})"
+    longest = max(text.split(b"/"), key=len)
+    if len(longest) > name_max:
+        return (
+            f"a path whose every name has at most {name_max} bytes (one has {len(longest)}: "
+            f"{longest[:20].decode(errors='replace')}...)"
+        )
+    return None
+
+
+def _path_limits() -> tuple[int, int]:
+    """(NAME_MAX, PATH_MAX) of the file system at /, with POSIX's usual values where unsaid."""
+    try:
+        return os.pathconf("/", "PC_NAME_MAX"), os.pathconf("/", "PC_PATH_MAX")
+    except (AttributeError, OSError, ValueError):  # not POSIX
+        return 255, 4096
+
+
 def _data_root_problem(path: Any) -> str | None:
-    return "a folder (an empty path is not a data set; null generates one)" if path == "" else None
+    if path == "":
+        return "a folder (an empty path is not a data set; null generates one)"
+    return _path_problem(path)
 
 
 def _existing_dir_problem(path: Any) -> str | None:
@@ -105,12 +131,67 @@ def _existing_dir_problem(path: Any) -> str | None:
 
 
 def _existing_file_problem(path: Any) -> str | None:
-    return None if Path(str(path)).expanduser().is_file() else "an existing file"
+    return _path_problem(path) or (
+        None if Path(str(path)).expanduser().is_file() else "an existing file"
+    )
 
 
+FilePath = Annotated[str, Check(_path_problem)]  # a file or folder a task reads or writes
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
 ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
 ExistingFile = Annotated[str, Check(_existing_file_problem)]  # a file a task reads
+
+
+def _device_problem(name: Any) -> str | None:
+    """``auto``, or a torch device this machine has (``cpu``, ``cuda``, ``cuda:1``, ``mps``)."""
+    if name == "auto":
+        return None
+    import torch
+
+    try:
+        device = torch.device(str(name))
+    except (RuntimeError, ValueError):
+        return "auto, cpu, cuda or cuda:<index> (a torch device)"
+    if device.type == "cpu":
+        return None
+    if device.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            return "a device this machine has: it has no CUDA GPU (use auto or cpu)"
+        if (device.index or 0) >= count:
+            return f"a device this machine has: cuda:0 to cuda:{count - 1}"
+        return None
+    if device.type == "mps" and torch.backends.mps.is_available():
+        return None
+    return f"a device this machine has ({device.type} is not available here; use auto or cpu)"
+
+
+Device = Annotated[str, Check(_device_problem)]
+
+
+def _cores() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _threads_problem(threads: Any) -> str | None:
+    cores = _cores()
+    if threads > cores:
+        return f"at most {cores}, the CPU cores this process may run on (more threads only wait)"
+    return None
+
+
+Threads = Annotated[int, Range(1), Check(_threads_problem)]
+
+
+def _non_empty_problem(values: Any) -> str | None:
+    return "a list of at least one value" if len(values) == 0 else None
+
+
+NonEmpty = Check(_non_empty_problem)  # for Annotated[Sequence[...], NonEmpty]
 
 
 def _game_problem(game: Any) -> str | None:
@@ -249,14 +330,41 @@ def check_node(node: DictConfig, where: str) -> None:
     hints = _hints(target)
     if inspect.isclass(target) and issubclass(target, _torch_optimizer()):
         hints = {**hints, **OPTIMIZER_ARGUMENTS}
+    accepted = _parameters(target)
     for key, value in node.items():
         if str(key).startswith("_"):
             continue
         name = f"{where}.{key}"
+        if accepted is not None and key not in accepted:
+            import difflib
+
+            near = difflib.get_close_matches(str(key), accepted, n=1)
+            raise ConfigError(
+                f"{name}: not a setting of {node['_target_']}"
+                + (f" (did you mean {where}.{near[0]}?)" if near else "")
+                + f"; it takes {', '.join(accepted) or 'none'}"
+            )
         if isinstance(value, DictConfig) and "_target_" in value:
             check_node(value, name)
-        elif key in hints and (expected := mismatch(value, hints[key])):
+            continue
+        if key in hints and (expected := mismatch(value, hints[key])):
             raise ConfigError(f"{name}={_plain(value)!r}: expected {expected}")
+        if isinstance(value, DictConfig):  # a mapping of nodes (event_camera's representations)
+            for inner, node_value in value.items():
+                if isinstance(node_value, DictConfig) and "_target_" in node_value:
+                    check_node(node_value, f"{name}.{inner}")
+
+
+def _parameters(target: Any) -> list[str] | None:
+    """The keyword arguments ``target`` takes; None where it takes any (``**kwargs``) or its
+    signature cannot be read."""
+    try:
+        parameters = inspect.signature(target).parameters.values()
+    except (TypeError, ValueError):
+        return None
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters):
+        return None
+    return [p.name for p in parameters if p.kind is not inspect.Parameter.VAR_POSITIONAL]
 
 
 def _torch_optimizer() -> type:

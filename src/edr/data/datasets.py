@@ -31,8 +31,9 @@ import numpy as np
 
 from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
+from edr.data.video import UnreadableVideo, check_video_file
 from edr.identity import digest
-from edr.validate import ConfigError, Fraction
+from edr.validate import ConfigError, Fraction, OpenFraction
 
 UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
@@ -104,6 +105,46 @@ def _missing(root: Path, what: str, layout: str) -> DataLayoutError:
     return DataLayoutError(f"{what} not found under {root}; expected the layout {layout}")
 
 
+def _checked_video(path: Path, where: str) -> Path:
+    """``path`` if it is a video file with bytes in it; else a :class:`DataLayoutError` naming
+    it and ``where`` it was listed."""
+    try:
+        return check_video_file(path)
+    except UnreadableVideo as error:
+        raise DataLayoutError(f"{where}: {error}") from None
+
+
+def _class_index(class_file: Path) -> dict[str, int]:
+    """classInd.txt's ``1 ApplyEyeMakeup`` lines -> {name: 0-based label}: every index from 1
+    to the number of classes once, every name once (else one line naming file and line)."""
+    classes: dict[str, int] = {}
+    lines: dict[int, int] = {}  # index -> the line that gave it
+    for n, line in enumerate(class_file.read_text(errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = line.split()
+        if len(parts) != 2 or not parts[0].isdigit():
+            raise DataLayoutError(f"{class_file}:{n}: expected '<index> <ClassName>', got {line!r}")
+        index, name = int(parts[0]), parts[1]
+        if index in lines:
+            raise DataLayoutError(
+                f"{class_file}:{n}: index {index} is given already on line {lines[index]}; "
+                "each class needs its own index"
+            )
+        if name in classes:
+            raise DataLayoutError(f"{class_file}:{n}: class {name} is listed twice")
+        classes[name], lines[index] = index - 1, n
+    if sorted(lines) != list(range(1, len(lines) + 1)):
+        gaps = sorted(set(range(1, max(lines, default=0) + 1)) - set(lines))
+        raise DataLayoutError(
+            f"{class_file}: expected the indices 1 to {len(lines)}, each once"
+            + (f" (missing: {', '.join(map(str, gaps[:5]))})" if gaps else "")
+        )
+    if not classes:
+        raise DataLayoutError(f"{class_file} lists no classes")
+    return classes
+
+
 def ucf101(
     root: str | Path,
     *,
@@ -134,30 +175,20 @@ def ucf101(
     for f in (class_file, list_file):
         if not f.is_file():
             raise _missing(root, f.name, UCF_LAYOUT)
-    classes: dict[str, int] = {}
-    for n, line in enumerate(class_file.read_text().splitlines(), start=1):
-        if line.strip():
-            parts = line.split()
-            if len(parts) != 2 or not parts[0].isdigit():
-                raise ValueError(f"{class_file}:{n}: expected '<index> <ClassName>', got {line!r}")
-            classes[parts[1]] = int(parts[0]) - 1
+    classes = _class_index(class_file)
     videos = []
-    for n, line in enumerate(list_file.read_text().splitlines(), start=1):
+    for n, line in enumerate(list_file.read_text(errors="replace").splitlines(), start=1):
         if not line.strip():
             continue
         rel = line.split()[0]
         name = rel.split("/")[0]
         if name not in classes:
-            raise ValueError(f"{list_file}:{n}: class {name!r} is not in {class_file.name}")
-        path = root / rel
-        if not path.is_file():
-            raise FileNotFoundError(
-                f"{list_file}:{n} lists {rel}, which is not under {root} ({UCF_LAYOUT})"
-            )
+            raise DataLayoutError(f"{list_file}:{n}: class {name!r} is not in {class_file.name}")
+        path = _checked_video(root / rel, f"{list_file}:{n} lists {rel}")
         group = UCF_GROUP.search(rel)
         videos.append(Video(path, classes[name], group.group(1) if group else rel))
     if not videos:
-        raise ValueError(f"{list_file} lists no videos")
+        raise DataLayoutError(f"{list_file} lists no videos")
     names = tuple(sorted(classes, key=classes.get))
     return VideoSet(tuple(videos), names, (class_file, list_file))
 
@@ -168,7 +199,11 @@ def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
     if not folders:
         raise _missing(root, "class folders with .avi files", "<root>/<ClassName>/*.avi")
     videos = [
-        Video(path, label, group.group(1) if (group := UCF_GROUP.search(path.name)) else path.stem)
+        Video(
+            _checked_video(path, str(folder)),
+            label,
+            group.group(1) if (group := UCF_GROUP.search(path.name)) else path.stem,
+        )
         for label, folder in enumerate(folders)
         for path in sorted(folder.glob("*.avi"))
     ]
@@ -180,7 +215,7 @@ def kth(
     *,
     train: bool = True,
     protocol: Literal["random", "person", "time"] = "random",
-    train_fraction: Fraction = 0.75,
+    train_fraction: OpenFraction = 0.75,
     seed: int = 0,
 ) -> VideoSet:
     """KTH's videos; ``protocol="random"``: the paper's seeded 75/25 random split of the videos,
@@ -194,13 +229,18 @@ def kth(
         raise _missing(root, f"action folders {absent}", KTH_LAYOUT)
     videos = []
     for label, action in enumerate(KTH_ACTIONS):
-        for path in sorted((root / action).glob("*.avi")):
+        found = sorted((root / action).glob("*.avi"))
+        if not found:
+            raise DataLayoutError(
+                f"{root / action} holds no .avi video: every action needs videos ({KTH_LAYOUT})"
+            )
+        for path in found:
             match = KTH_NAME.search(path.name)
             if match is None or match.group(2) != action:
-                raise ValueError(f"{path}: not a KTH file name ({KTH_LAYOUT})")
-            videos.append(Video(path, label, match.group(1)))
-    if not videos:
-        raise _missing(root, "no .avi files", KTH_LAYOUT)
+                raise DataLayoutError(
+                    f"{path}: not a KTH file name ({KTH_LAYOUT}): rename or remove it"
+                )
+            videos.append(Video(_checked_video(path, str(root / action)), label, match.group(1)))
     if protocol == "time":
         return VideoSet(tuple(videos), KTH_ACTIONS, time_split=TimeSplit(train, train_fraction))
     if protocol == "person":
@@ -214,8 +254,14 @@ def kth(
     else:
         raise ValueError(f"protocol must be 'random', 'person' or 'time', got {protocol!r}")
     if not chosen:
-        raise ValueError(
-            f"the {protocol} split of {root} leaves no {'train' if train else 'test'} videos"
+        how = (
+            f"train_fraction={train_fraction} of the {len(videos)} videos"
+            if protocol == "random"
+            else "split by person"
+        )
+        raise ConfigError(
+            f"task.videos: the {how} under {root} leaves no {'train' if train else 'test'} "
+            "video: change task.videos.train_fraction or protocol, or add videos"
         )
     return VideoSet(tuple(chosen), KTH_ACTIONS)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
@@ -13,7 +13,9 @@ import torch
 from edr.atomic import publish_dir
 from edr.data.fingerprint import files_fingerprint
 from edr.data.video import read_video, write_video
-from edr.validate import PositiveInt
+from edr.validate import PositiveInt, Range
+
+FrameSide = Annotated[int, Range(16)]  # a frame's side: the generated scene draws at least 16
 
 
 def _texture(rng: np.random.Generator, height: int, width: int, blur: float) -> np.ndarray:

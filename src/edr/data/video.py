@@ -8,6 +8,31 @@ import cv2
 import numpy as np
 import torch
 
+from edr.validate import ConfigError
+
+
+class UnreadableVideo(ConfigError):
+    """A video file that cannot be decoded (empty, text, corrupt): one line naming it."""
+
+
+class MissingVideo(UnreadableVideo, FileNotFoundError):
+    """A video path with no file behind it (or a link that leads nowhere, or in a loop)."""
+
+
+def check_video_file(path: str | Path) -> Path:
+    """``path`` if it is a file with bytes in it; else :class:`MissingVideo` (nothing there, a
+    dangling link, a symlink loop, a folder) or :class:`UnreadableVideo` (0 bytes), naming it."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+    except OSError as error:  # missing, a dangling link, a symlink loop, a name too long
+        raise MissingVideo(f"video not found: {path} ({error.strerror or error})") from None
+    if not path.is_file():
+        raise MissingVideo(f"video not found: {path} is not a file")
+    if size == 0:
+        raise UnreadableVideo(f"video {path} is empty (0 bytes): replace or remove it")
+    return path
+
 
 def read_video(
     path: str | Path,
@@ -19,12 +44,10 @@ def read_video(
 
     A file that decodes clearly fewer frames than its container declares (truncated, or
     corrupt part way) is a ``ValueError`` naming it and both counts, not a shorter clip."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"video not found: {path}")
+    path = check_video_file(path)
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
-        raise ValueError(f"cannot open video {path}: not a video OpenCV can decode")
+        raise UnreadableVideo(f"cannot open video {path}: not a video OpenCV can decode")
     declared = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))  # 0 or less: not stated
     frames = []
     try:
@@ -38,11 +61,11 @@ def read_video(
     finally:
         capture.release()
     if not frames:
-        raise ValueError(f"video {path} has no decodable frames (corrupt or empty file)")
+        raise UnreadableVideo(f"video {path} has no decodable frames (corrupt or empty file)")
     wanted = declared if max_frames is None else min(declared, max_frames)
     # Containers' counts can be estimates off by a frame or two; half a file is not that.
     if declared > 0 and len(frames) < 0.95 * wanted - 1:
-        raise ValueError(
+        raise UnreadableVideo(
             f"video {path} decodes {len(frames)} of the {declared} frames its container declares "
             "(truncated or corrupt part way): replace the file"
         )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -16,6 +17,9 @@ import numpy as np
 import torch
 from torch import nn
 
+# The brightest intensity (uint8 video's): what the ranges of EDR's and the DVS simulator's
+# settings are worked out for.
+FULL_SCALE = 255.0
 # ITU-R BT.601 luma weights, the ones OpenCV's RGB2GRAY uses.
 GRAY_WEIGHTS = (0.299, 0.587, 0.114)
 
@@ -58,6 +62,10 @@ class Representation(nn.Module):
     def out_frames(self, frames: int) -> int:
         """Frames of the output for a clip of ``frames`` frames (differences lose one)."""
         return frames
+
+    def min_frames(self) -> int:
+        """The fewest input frames that give one output frame (a difference needs two)."""
+        return 2 - self.out_frames(1)
 
     def preview(self, out_t: torch.Tensor) -> np.ndarray:
         """One output frame (C_out, H, W) -> an (H, W, 3) picture in [0, 1] for people to look at.
@@ -121,29 +129,52 @@ def flow_picture(flow: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
 
 
-def check_clip(clip: torch.Tensor, *, min_frames: int = 1, name: str = "clip") -> None:
-    """Raise ``ValueError`` unless ``clip`` is a (B, T, C, H, W) clip of legal intensities."""
-    _check_tensor(clip, "(B, T, C, H, W)", name)
+def check_enough_frames(
+    frames: int, representations: Mapping[str, Representation], key: str = "task.frames"
+) -> None:
+    """``ConfigError`` naming ``key`` unless a clip of ``frames`` frames gives every one of
+    ``representations`` an output frame (a difference needs two)."""
+    from edr.validate import ConfigError
+
+    for name, representation in representations.items():
+        if representation.out_frames(frames) < 1:
+            raise ConfigError(
+                f"{key}={frames}: expected at least {representation.min_frames()}, the frames "
+                f"{name} ({type(representation).__name__}) needs for one output frame"
+            )
+
+
+def check_clip(
+    clip: torch.Tensor, *, min_frames: int = 1, name: str = "clip",
+    dtype: torch.dtype = torch.float32,
+) -> None:  # fmt: skip
+    """Raise ``ValueError`` unless ``clip`` is a (B, T, C, H, W) clip of legal intensities, each
+    one that ``dtype`` (what the representation computes in) holds."""
+    _check_tensor(clip, "(B, T, C, H, W)", name, dtype)
     if clip.shape[1] < min_frames:
         raise ValueError(f"{name} has T={clip.shape[1]} frames; at least {min_frames} are needed")
 
 
-def check_frame(frame: torch.Tensor, *, name: str = "frame") -> None:
+def check_frame(
+    frame: torch.Tensor, *, name: str = "frame", dtype: torch.dtype = torch.float32
+) -> None:
     """Raise ``ValueError`` unless ``frame`` is a (B, C, H, W) frame of legal intensities."""
-    _check_tensor(frame, "(B, C, H, W)", name)
+    _check_tensor(frame, "(B, C, H, W)", name, dtype)
 
 
-def _check_tensor(x: torch.Tensor, layout: str, name: str) -> None:
+def _check_tensor(x: torch.Tensor, layout: str, name: str, dtype: torch.dtype) -> None:
     """Rank, channel count (the dim named C in ``layout``), dtype and values of ``x``."""
     if not isinstance(x, torch.Tensor):
         raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
     dims = layout.strip("()").split(", ")
     if x.dim() != len(dims):
         raise ValueError(f"{name} must have shape {layout}, got {tuple(x.shape)} (rank {x.dim()})")
-    _check_channels_and_values(x, channel_dim=dims.index("C"), name=name)
+    _check_channels_and_values(x, channel_dim=dims.index("C"), name=name, dtype=dtype)
 
 
-def _check_channels_and_values(x: torch.Tensor, *, channel_dim: int, name: str) -> None:
+def _check_channels_and_values(
+    x: torch.Tensor, *, channel_dim: int, name: str, dtype: torch.dtype
+) -> None:
     if x.shape[channel_dim] not in (1, 3):
         raise ValueError(
             f"{name} must have 1 (gray) or 3 (RGB) channels in dim {channel_dim}, "
@@ -165,6 +196,12 @@ def _check_channels_and_values(x: torch.Tensor, *, channel_dim: int, name: str) 
         raise ValueError(f"{name} contains inf; intensities must be finite")
     if low < 0:
         raise ValueError(f"{name} has negative intensities (min {low.item():.4g}); expected >= 0")
+    largest = torch.finfo(dtype).max
+    if x.dtype.itemsize > dtype.itemsize and high > largest:
+        raise ValueError(
+            f"{name} has intensities up to {high.item():.4g}, past the largest "
+            f"{str(dtype).removeprefix('torch.')} ({largest:.3g}) this representation computes in"
+        )
 
 
 def to_float(x: torch.Tensor) -> torch.Tensor:

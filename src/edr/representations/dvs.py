@@ -14,6 +14,7 @@ Events are a structured array with fields ``t`` (microseconds, int64), ``x``, ``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 
 import numpy as np
@@ -22,6 +23,7 @@ from numba import njit
 
 from edr.data.events.checks import EVENT_DTYPE
 from edr.representations.base import (
+    FULL_SCALE,
     Features,
     Representation,
     check_clip,
@@ -69,6 +71,11 @@ def _crossings(log_prev, log_next, ref, th_on, th_off, last_t, t_prev, dt, refra
     return times[:n], pixels[:n], polarity[:n]
 
 
+# The most events the settings may make one pixel fire between two frames (a 0.2 threshold at
+# eps 1 fires at most 28): past it one recording's events no longer fit in memory.
+MAX_EVENTS_PER_FRAME = 100
+
+
 class DVSSimulator:
     """Turns gray frames into DVS events; one call simulates one recording from its first frame.
 
@@ -89,6 +96,21 @@ class DVSSimulator:
         seed: int = 0,
     ) -> None:
         check_arguments(self, locals())
+        peak = math.log1p(FULL_SCALE / eps)  # the largest log-intensity change between frames
+        for name, threshold in (("threshold_on", threshold_on), ("threshold_off", threshold_off)):
+            if peak / threshold > MAX_EVENTS_PER_FRAME:
+                raise ValueError(
+                    f"DVSSimulator: {name}={threshold:g}: expected at least "
+                    f"{peak / MAX_EVENTS_PER_FRAME:.3g} with eps={eps:g}: a full-scale change "
+                    f"would fire {peak / threshold:.3g} events a pixel between two frames (at "
+                    f"most {MAX_EVENTS_PER_FRAME}, so that a recording fits in memory)"
+                )
+        if shot_noise_hz / fps > MAX_EVENTS_PER_FRAME:
+            raise ValueError(
+                f"DVSSimulator: shot_noise_hz={shot_noise_hz:g}: expected at most "
+                f"{MAX_EVENTS_PER_FRAME * fps:g} at fps={fps:g} (at most "
+                f"{MAX_EVENTS_PER_FRAME} noise events a pixel between two frames)"
+            )
         self.threshold_on, self.threshold_off = threshold_on, threshold_off
         self.mismatch, self.refractory_us, self.shot_noise_hz = (
             mismatch,

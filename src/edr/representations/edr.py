@@ -16,6 +16,7 @@ ON/OFF pair. Output channel order: for each input channel c, for each timescale 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Literal, NamedTuple
 
@@ -25,6 +26,7 @@ from torch import nn
 
 from edr.representations import buffers, kernels
 from edr.representations.base import (
+    FULL_SCALE,
     Features,
     Representation,
     check_clip,
@@ -54,6 +56,33 @@ def _per_timescale(value: float | Sequence[float], k: int, name: str) -> torch.T
 
 
 TAU_RANGE = (0.25, 64.0)  # half-lives in frames that parameterization="bounded" can reach
+
+
+def _overflow_problem(
+    eps: float, betas: Sequence[float], log_form: bool, summed: bool, dtype: torch.dtype
+) -> str | None:
+    """Where eps or beta would take EDR's arithmetic past ``dtype``: the largest return is a
+    pixel at full scale over an EMA at eps, ``(1 + 255/eps)``; the ratio form raises it to beta
+    (the sum of the betas with ``combine="sum"``), the log form multiplies its log by beta."""
+    info = torch.finfo(dtype)
+    name = str(dtype).removeprefix("torch.")
+    # the smallest eps whose largest return is a finite number (and eps itself a normal one)
+    least = max(info.tiny, FULL_SCALE / math.expm1(math.log(info.max)))
+    if eps < least:
+        return (
+            f"eps={eps!r}: expected at least {least:.3g}: a pixel of {FULL_SCALE:g} over an EMA "
+            f"at eps is a return of {1 + FULL_SCALE / eps:.3g}, past {name}'s largest number"
+        )
+    peak = math.log1p(FULL_SCALE / eps)  # the largest |ln(I / ema)| an intensity reaches
+    beta = sum(betas) if summed else max(betas)
+    bound = (info.max if log_form else math.log(info.max)) / peak
+    if beta > bound:
+        what = f"{peak:.3g} * beta" if log_form else f"(1 + {FULL_SCALE:g}/eps) ** beta"
+        return (
+            f"beta={beta:g}{' summed' if summed else ''}: expected at most {bound:.6g} with "
+            f"eps={eps:g}: past it the largest return, {what}, overflows {name}"
+        )
+    return None
 
 
 class KernelArgs(NamedTuple):
@@ -128,6 +157,13 @@ class EDR(Representation):
             raise ValueError('combine="sum" thresholds once: nu_on and nu_off must be scalars')
         nu_on_t = _per_timescale(nu_on, k_out, "nu_on")
         nu_off_t = _per_timescale(nu_off, k_out, "nu_off")
+        betas = _per_timescale(beta, k, "beta").tolist()
+        compute = torch.float64 if out_dtype == "float64" else torch.float32
+        overflow = _overflow_problem(
+            float(eps), betas, return_form == "log", combine == "sum", compute
+        )
+        if overflow:
+            raise ValueError(f"EDR: {overflow}")
 
         self.threshold, self.return_form, self.combine, self.color = (
             threshold,
@@ -203,6 +239,28 @@ class EDR(Representation):
             for i, v in enumerate(t.detach())
         }
 
+    def out_of_range(self) -> str | None:
+        """The first value a learnable layer's parameters walked to where the layer no longer
+        works, or None: a half-life or beta not > 0 (beta <= 0 swaps or erases ON and OFF), a
+        nu_off of 1 or more (its OFF threshold is 0 or less), NaN anywhere, or a beta past what
+        float32 holds (:func:`_overflow_problem`)."""
+        with torch.no_grad():
+            nu_on, nu_off = self.nus()
+            rules = (("tau", self.half_lives, "> 0", lambda v: v > 0),
+                     ("beta", self.betas, "> 0", lambda v: v > 0),
+                     ("nu_on", nu_on, "a number", torch.isfinite),
+                     ("nu_off", nu_off, "< 1", lambda v: v < 1))  # fmt: skip
+            for name, values, expected, holds in rules:
+                for i, ok in enumerate(holds(values).tolist()):  # NaN holds no rule
+                    if not ok:
+                        return (
+                            f"EDR's {name}_{i} = {float(values[i]):.4g} left its range ({expected})"
+                        )
+            return _overflow_problem(
+                self.eps, self.betas.tolist(), self.return_form == "log", self.combine == "sum",
+                self._compute_dtype,
+            )  # fmt: skip
+
     def nus(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(K',) nu_on and nu_off."""
         if self.parameterization == "log":
@@ -230,7 +288,7 @@ class EDR(Representation):
         that repeated calls reuse one buffer; without it, big outputs come from recycled memory
         (:mod:`edr.representations.buffers`).
         """
-        check_clip(frames, name="frames")
+        check_clip(frames, name="frames", dtype=self._compute_dtype)
         b, t, c, h, w = frames.shape
         shape = (b, t, self.out_channels(c), h, w)
         if self.can_fuse(frames):
@@ -270,9 +328,16 @@ class EDR(Representation):
         ``out``: a (B, C'*2*K', H, W) tensor in ``out_dtype`` that receives the events (a
         streaming loop's one output buffer).
         """
-        check_frame(frame)
+        check_frame(frame, dtype=self._compute_dtype)
         b, c, h, w = frame.shape
         shape = (b, self.state_channels(c), self.k, h, w)
+        if state is not None and not (
+            isinstance(state, tuple) and isinstance(getattr(state, "ema", None), torch.Tensor)
+        ):
+            raise ValueError(
+                f"state must be the EDRState a previous step returned, or None; got "
+                f"{type(state).__name__}"
+            )
         if state is not None and tuple(state.ema.shape) != shape:
             raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")
         if reset is not None:

@@ -96,6 +96,8 @@ class Actor:
             self._frames, self._h, self._c, td["is_init"]
         )
         probs = logits.detach().reshape(-1, self.num_actions).softmax(-1)
+        if not bool(torch.isfinite(probs).all()):  # multinomial would fail with a trace
+            raise FloatingPointError("the policy's action probabilities are NaN or inf")
         action = torch.multinomial(probs, 1).squeeze(-1)  # (N,)
         one_hot = torch.nn.functional.one_hot(action, self.num_actions)
         td["action"] = one_hot.reshape(*td.batch_size, self.num_actions)

@@ -30,7 +30,9 @@ from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
+    DATA_FINGERPRINT,
     UnreadableCheckpoint,
+    check_same_data,
     load_checkpoint,
     restore,
     save_atomic,
@@ -55,6 +57,7 @@ from edr.rl.settings import (
     OptimSettings,
 )
 from edr.rl.transform import ObservationFrame
+from edr.tasks.divergence import divergence
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import ConfigError, LoggerName, PositiveInt
@@ -125,14 +128,19 @@ def train_paac(
     steps_done, history = 0, []
     checkpoint = out_dir / CHECKPOINT
     parts = {"network": net, "optimizer": opt, "schedule": schedule}
+    fingerprint = (
+        rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
+    )
     if resume:
         state = load_checkpoint(checkpoint)
+        check_same_data(state, fingerprint, checkpoint)  # the same ROM (or env) it trained on
         restore(state, parts)  # episodes in progress restart
         steps_done, history = state["env_steps"], state["history"]
     scalars = open_logger(logger, out_dir, step=steps_done)
 
     def save() -> None:
-        save_checkpoint(checkpoint, parts, env_steps=steps_done, history=history)
+        save_checkpoint(checkpoint, parts, env_steps=steps_done, history=history,
+                        **{DATA_FINGERPRINT: fingerprint})  # fmt: skip
 
     # ---- training ----------------------------------------------------------------------------
     recent: deque[float] = deque(maxlen=20)
@@ -157,6 +165,7 @@ def train_paac(
                     scalars.log_scalar(key, value, step=steps_done)
         bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
 
+    diverged: dict[str, Any] = {}  # where training stopped being numbers, if it did
     clock.lap()  # the first row's times start with the loop, not with the envs' set-up
     try:
         update = 0
@@ -164,7 +173,11 @@ def train_paac(
             update += 1
             interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
             dead_units.reset()
-            rollout = actor.rollout(loss.rollout_steps)  # the envs' steps and the forward passes
+            try:
+                rollout = actor.rollout(loss.rollout_steps)  # the envs' steps, forward passes
+            except FloatingPointError as error:  # the network's outputs stopped being numbers
+                diverged = _diverged(steps_done, update, str(error))
+                break
             with clock.phase("backward"):  # the loss and its gradient
                 returns = n_step_returns(
                     rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
@@ -173,6 +186,9 @@ def train_paac(
                     rollout.logits, rollout.values, rollout.actions, returns,
                     loss.entropy_coeff, loss.critic_coeff, loss.scale,
                 )  # fmt: skip
+                if reason := divergence(net, total):
+                    diverged = _diverged(steps_done, update, reason)
+                    break
                 opt.zero_grad(set_to_none=True)
                 total.backward()
             with clock.phase("optimizer"):
@@ -184,8 +200,9 @@ def train_paac(
             updating = False
             recent.extend(rollout.scores)
             losses = {k: float(v) for k, v in loss_parts.items()}
-            if not all(np.isfinite(v) for v in losses.values()):
-                raise FloatingPointError(f"non-finite loss at {steps_done} env steps: {losses}")
+            if reason := divergence(net):  # the step left NaN or inf in the network
+                diverged = _diverged(steps_done, update, reason)
+                break
             window.append({
                 "train/grad_norm": float(grad_norm),
                 "train/value_mean": float(rollout.values.detach().mean()),
@@ -208,25 +225,30 @@ def train_paac(
     finally:
         bar.close()
         envs.close()
-    save()
-
-    # ---- evaluation --------------------------------------------------------------------------
-    scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
+    if diverged:  # the checkpoint keeps the last network that was numbers; no games to score
+        log.warning("training diverged at %d env steps (%s): recorded as diverged",
+                    steps_done, diverged["train/diverged_reason"])  # fmt: skip
+        if window:
+            log_row()
+        scores: list[float] = []
+    else:
+        save()
+        scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
     # games cut short: random play under the same cap, on the same games, is the yardstick
     random_scores = (
         _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, env.frame_stack, backend, seed,
                   evaluation)
-        if evaluation.capped else None
+        if evaluation.capped and scores else None
     )  # fmt: skip
+
+    # ---- results -----------------------------------------------------------------------------
     save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
     scored = [row for row in history if "train/score" in row]
     return {
         "data/source": "emulator" if env.env_id is None else "gymnasium",
         "data/game": env.name,
-        "data/fingerprint": (
-            rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
-        ),
+        "data/fingerprint": fingerprint,
         "train/env_steps": steps_done,
         "train/fps": history[-1]["train/fps"] if history else float("nan"),
         "train/score_first": scored[0]["train/score"] if scored else None,
@@ -235,6 +257,7 @@ def train_paac(
         **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
         **_score_metrics(scores),
         **_random_metrics(random_scores, evaluation),
+        **diverged,
     }
 
 
@@ -243,6 +266,12 @@ def _random_metrics(scores: list[float] | None, evaluation: EvalSettings) -> dic
     if scores is None:
         return {}
     return {"eval/random_mean": float(np.mean(scores)), "eval/max_steps": evaluation.max_steps}
+
+
+def _diverged(env_steps: int, update: int, reason: str) -> dict[str, Any]:
+    """The record's note of a divergence: where (env steps, update) and why."""
+    return {"train/diverged_step": env_steps, "train/diverged_update": update,
+            "train/diverged_reason": reason}  # fmt: skip
 
 
 def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
@@ -356,11 +385,13 @@ def _write_results(out_dir: Path, history: list[dict], scores: list[float], titl
 
 
 def _score_metrics(scores: list[float]) -> dict[str, float | int]:
+    """Min, max and mean of the games' scores (NaN when no game was played: a divergence)."""
+    nan = float("nan")
     return {
         "eval/plays": len(scores),
-        "eval/min": float(np.min(scores)),
-        "eval/max": float(np.max(scores)),
-        "eval/mean": float(np.mean(scores)),
+        "eval/min": float(np.min(scores)) if scores else nan,
+        "eval/max": float(np.max(scores)) if scores else nan,
+        "eval/mean": float(np.mean(scores)) if scores else nan,
     }
 
 

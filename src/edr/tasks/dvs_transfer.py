@@ -10,6 +10,7 @@ interval, like EDR's output, and read and checked before the pre-training starts
 from __future__ import annotations
 
 import inspect
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -26,11 +27,20 @@ from edr.data.datasets import VideoSet, resolve_root
 from edr.data.events import list_recordings, read_recording, sensor_of
 from edr.data.fingerprint import files_fingerprint
 from edr.representations import EDR, DVSSimulator, events_to_frames
+from edr.tasks.divergence import divergence
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted
-from edr.validate import ExistingDir, Fraction, NonNegativeInt, PositiveFloat, PositiveInt
+from edr.validate import (
+    ConfigError,
+    ExistingDir,
+    NonNegativeInt,
+    OpenFraction,
+    PositiveFloat,
+    PositiveInt,
+)
 
+log = logging.getLogger(__name__)
 BIN_FRAMES = 16  # frame intervals binned at the sensor's resolution at a time
 KTH_SETTINGS = ("videos", "synthetic", "data_root", "cache_dir", "resize", "max_frames", "frames",
                 "crop")  # fmt: skip
@@ -85,11 +95,14 @@ def _split(labels: np.ndarray, train_fraction: float, seed: int) -> tuple[np.nda
 
 
 @torch.no_grad()
-def _predict(backbone: nn.Module, clips: torch.Tensor, batch: int = 8) -> np.ndarray:
+def _predict(backbone: nn.Module, clips: torch.Tensor, true: np.ndarray, batch: int = 8
+              ) -> tuple[np.ndarray, float]:  # fmt: skip
+    """(the class each clip is given, the accuracy: NaN where a logit is not a number)."""
     backbone.eval()
-    return np.concatenate(
-        [backbone(clips[i : i + batch]).argmax(-1).numpy() for i in range(0, len(clips), batch)]
-    )
+    logits = torch.cat([backbone(clips[i : i + batch]) for i in range(0, len(clips), batch)])
+    predicted = logits.argmax(-1).numpy()
+    finite = bool(torch.isfinite(logits).all())
+    return predicted, float((predicted == true).mean()) if finite else float("nan")
 
 
 def dvs_transfer(
@@ -101,7 +114,7 @@ def dvs_transfer(
     dvs_root: ExistingDir | None = None,
     simulator: dict[str, float] | None = None,
     streams_per_class: PositiveInt = 10,
-    train_fraction: Fraction = 0.7,
+    train_fraction: OpenFraction = 0.7,
     finetune_epochs: NonNegativeInt = 20,
     batch_size: PositiveInt = 8,
     event_scale: PositiveFloat = 1.0,
@@ -112,8 +125,18 @@ def dvs_transfer(
     The KTH videos the simulator records, and their frames and crop, are the pre-training's
     (``pretrain``'s settings). ``resume`` continues the pre-training from its checkpoint; fine-tuning is short and reruns.
     """
+    try:  # the simulator's settings, checked before any work
+        sim = DVSSimulator(**(simulator or {}))
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"task.simulator: {error}") from None
+    if not dvs_root and round(train_fraction * streams_per_class) in (0, streams_per_class):
+        raise ConfigError(
+            f"task.train_fraction={train_fraction} of task.streams_per_class="
+            f"{streams_per_class} leaves no recording of a class to "
+            f"{'fine-tune on' if train_fraction < 0.5 else 'test'}: raise streams_per_class"
+        )
+
     # ---- 1. event recordings, as [ON, OFF] frames: checked before any training -------------
-    sim = DVSSimulator(**(simulator or {}))
     kth = kth_settings(pretrain)
     videos: Callable[..., VideoSet] = kth["videos"]
     frames, crop, cache_dir = kth["frames"], kth["crop"], kth["cache_dir"]
@@ -151,7 +174,7 @@ def dvs_transfer(
     labels_np = np.array(labels)
     train_idx, test_idx = _split(labels_np, train_fraction, seed)
     if len(train_idx) == 0 or len(test_idx) == 0:
-        raise ValueError(
+        raise ConfigError(
             f"{len(labels_np)} recordings are too few for a {train_fraction:.0%} split"
         )
 
@@ -169,24 +192,39 @@ def dvs_transfer(
     fingerprint = fingerprint or pretrained["data/fingerprint"]
 
     # ---- 3. straight in, then fine-tuned ------------------------------------------------------
-    zero_shot = _predict(backbone, clips_t[test_idx])
+    true = labels_np[test_idx]
+    _, zero_shot = _predict(backbone, clips_t[test_idx], true)
     opt = optimizer(backbone.parameters())
     loss_fn = nn.CrossEntropyLoss()
     train_x, train_y = clips_t[train_idx], torch.from_numpy(labels_np[train_idx])
-    for _ in (bar := tqdm(range(finetune_epochs), desc="fine-tuning", unit="epoch")):
+    diverged: dict[str, Any] = {}  # where fine-tuning stopped being a number, if it did
+    step = 0
+    for epoch in (bar := tqdm(range(finetune_epochs), desc="fine-tuning", unit="epoch")):
         backbone.train()
         order = torch.randperm(len(train_x))
         for i in range(0, len(order), batch_size):
             interrupts.raise_if_stopping()
-            batch = order[i : i + batch_size]
+            batch, step = order[i : i + batch_size], step + 1
             loss = loss_fn(backbone(train_x[batch]), train_y[batch])
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+            reason = divergence(backbone, loss)
+            if reason is None:
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                reason = divergence(backbone)
+            if reason is not None:  # a result to record, as recognition does, not a crash
+                diverged = {"train/diverged_epoch": epoch + 1, "train/diverged_step": step,
+                            "train/diverged_reason": reason}  # fmt: skip
+                log.warning("fine-tuning diverged at step %d (%s): recorded as diverged",
+                            step, reason)  # fmt: skip
+                break
+        if diverged:
+            break
         bar.set_postfix(loss=f"{loss.item():.3f}")
-    predicted = _predict(backbone, clips_t[test_idx])
-    true = labels_np[test_idx]
+    predicted, accuracy = _predict(backbone, clips_t[test_idx], true)
     scores, confusion = classification_metrics(predicted, true, classes)
+    if diverged or np.isnan(accuracy):  # what a network of NaNs predicts is no accuracy
+        scores["eval/accuracy"] = float("nan")
     write_json_atomic(out_dir / CONFUSION, confusion)
     save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
     real = (kth["data_root"] is not None) + (dvs_root is not None)  # KTH videos, event recordings
@@ -199,6 +237,8 @@ def dvs_transfer(
         "data/train_recordings": len(train_idx),
         "data/test_recordings": len(test_idx),
         "pretrain/eval/accuracy": pretrained["eval/accuracy"],
-        "eval/zero_shot_accuracy": float((zero_shot == true).mean()),
+        **{f"pretrain/{k}": v for k, v in pretrained.items() if "diverged" in k},
+        "eval/zero_shot_accuracy": zero_shot,
         **scores,
+        **diverged,
     }

@@ -32,9 +32,9 @@ from edr.data.events import (
     sensor_of,
     write_recording,
 )
-from edr.data.synthetic import video_or_scene
+from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import FDR, DVSCamera, Representation
-from edr.representations.base import to_gray
+from edr.representations.base import check_enough_frames, to_gray
 from edr.representations.dvs import EVENT_DTYPE
 from edr.validate import ExistingFile, PositiveFloat, PositiveInt
 
@@ -128,8 +128,8 @@ def event_camera(
     representations: dict[str, Representation],
     video: ExistingFile | None = None,
     frames: PositiveInt = 90,
-    height: PositiveInt = 120,
-    width: PositiveInt = 160,
+    height: FrameSide = 120,
+    width: FrameSide = 160,
     fps: PositiveFloat = 25.0,
     timestamp_bits: PositiveInt = 32,
     value_bits: PositiveInt = 16,
@@ -140,6 +140,7 @@ def event_camera(
     them; returns their data rates and sparsity. ``save_events`` (a format's suffix) writes the
     events of the DVS simulator and of a hard-threshold EDR into the run folder,
     ``<name>_events<suffix>``, for other event tools."""
+    check_enough_frames(frames, representations)
     # ---- a real camera's recording, checked before the clip ------------------------------------
     camera = recording_cost(events, fps, timestamp_bits) if events else {}
 

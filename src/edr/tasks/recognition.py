@@ -13,7 +13,7 @@ import functools
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Annotated, Any, NamedTuple
 
 import numpy as np
 import torch
@@ -23,7 +23,15 @@ from tqdm import tqdm
 
 from edr import interrupts
 from edr.atomic import write_json_atomic
-from edr.checkpoints import CHECKPOINT, load_checkpoint, restore, save_atomic, save_checkpoint
+from edr.checkpoints import (
+    CHECKPOINT,
+    DATA_FINGERPRINT,
+    check_same_data,
+    load_checkpoint,
+    restore,
+    save_atomic,
+    save_checkpoint,
+)
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
@@ -31,13 +39,19 @@ from edr.models.dead_units import DeadUnits
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
 from edr.representations import EDR, Representation
+from edr.representations.base import check_enough_frames
+from edr.tasks.divergence import divergence
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import (
     ConfigError,
     DataRoot,
+    Device,
+    FilePath,
+    Fraction,
     LoggerName,
+    NonEmpty,
     NonNegativeInt,
     PositiveFloat,
     PositiveInt,
@@ -103,13 +117,13 @@ def fit_recognition(
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
     data_root: DataRoot | None = None,
-    cache_dir: str = "results/cache",
+    cache_dir: FilePath = "results/cache",
     resize: tuple[PositiveInt, PositiveInt] = (89, 67),
     gray: bool = False,
     max_frames: PositiveInt | None = None,
     frames: PositiveInt = 60,
     crop: PositiveInt = 58,
-    scales: Sequence[PositiveFloat] = PAPER_SCALES,
+    scales: Annotated[Sequence[Fraction], NonEmpty] = PAPER_SCALES,  # of the short side
     epochs: PositiveInt = 26,
     clips_per_epoch: PositiveInt = 9000,
     batch_size: PositiveInt = 15,
@@ -120,7 +134,7 @@ def fit_recognition(
     normalize_input: bool = False,
     resume: bool = False,
     logger: LoggerName = "csv",
-    device: str = "auto",
+    device: Device = "auto",
     num_workers: NonNegativeInt = 0,
 ) -> Fitted:
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
@@ -135,14 +149,25 @@ def fit_recognition(
             f"task.crop={crop}: expected at most the frames' short side, {min(resize)} "
             f"(task.resize={list(resize)}): a crop is cut from a frame, then resized"
         )
+    check_enough_frames(frames, {"the representation": representation})
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     dev = torch.device(device)
     root = resolve_root(data_root, synthetic, cache_dir)
     train_videos, test_videos = videos(root, train=True), videos(root, train=False)
     classes = train_videos.classes
+    untrained = sorted(set(classes) - {classes[v.label] for v in train_videos.videos})
+    if untrained:
+        raise ConfigError(
+            f"{root}: the training split holds no video of {', '.join(untrained)}: a class "
+            f"without training videos cannot be learned (nor is chance 1/{len(classes)}); "
+            "give it videos, or remove it from the data set"
+        )
+    data_fingerprint = videos_fingerprint(root, [train_videos, test_videos])
     checkpoint = out_dir / CHECKPOINT
     state = load_checkpoint(checkpoint) if resume else None
+    if state is not None:  # a checkpoint goes on only on the data it trained on
+        check_same_data(state, data_fingerprint, checkpoint)
     scalars = open_logger(logger, out_dir, step=state["epoch"] if state else 0)
     frame_source = VideoSource(cache_dir, size=tuple(resize), gray=gray, max_frames=max_frames)
     if representation.precompute:  # computed once per video, like the paper's flows
@@ -200,25 +225,31 @@ def fit_recognition(
             clips, labels = clips.to(dev), labels.to(dev)
             logits = model(clips)
             loss = loss_fn(logits, labels)
-            if not torch.isfinite(loss):  # diverged: a result to record, not a crash
+            reason = divergence(model, loss)
+            if reason is None:
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if learnable:  # the EDR layer's gradient, before the step: its stability
+                    edr_grad_norms.append(_grad_norm(online))
+                opt.step()
+                # a step can leave NaN in a layer the loss skips, or a learned EDR value
+                # outside its range (no events, ON and OFF swapped) while the loss is a number
+                reason = divergence(model) or (online.out_of_range() if learnable else None)
+            if reason is not None:  # diverged: a result to record, not a crash
                 diverged = {
                     "train/diverged_epoch": epoch + 1,
                     "train/diverged_step": epoch * len(loader) + step,
+                    "train/diverged_reason": reason,
                 }
                 break
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if learnable:  # the EDR layer's gradient, before the step: its stability, logged
-                edr_grad_norms.append(_grad_norm(online))
-            opt.step()
             total += len(labels)
             correct += int((logits.argmax(-1) == labels).sum())
             loss_sum += loss.item() * len(labels)
             bar.set_postfix(loss=f"{loss_sum / total:.3f}", acc=f"{correct / total:.2f}")
         if diverged:
             log.warning(
-                "the training loss is not a number at epoch %d, step %d: training stops here "
-                "and the run is recorded as diverged", epoch + 1, diverged["train/diverged_step"]
+                "training diverged at epoch %d, step %d (%s): it stops here and the run is "
+                "recorded as diverged", epoch + 1, diverged["train/diverged_step"], reason
             )  # fmt: skip
             break
         row = {
@@ -240,7 +271,8 @@ def fit_recognition(
             for key, value in row.items():
                 if key != "epoch":
                     scalars.log_scalar(key, value, step=epoch + 1)
-        save_checkpoint(checkpoint, parts, history=history, epoch=epoch + 1)
+        save_checkpoint(checkpoint, parts, history=history, epoch=epoch + 1,
+                        **{DATA_FINGERPRINT: data_fingerprint})  # fmt: skip
 
     # ---- final evaluation --------------------------------------------------------------------
     predicted, true = evaluate(model, test_set, dev)
@@ -273,7 +305,7 @@ def fit_recognition(
         **data_labels(data_root, synthetic, train_videos),
         "data/synthetic": data_root is None,
         "data/root": str(root),
-        "data/fingerprint": videos_fingerprint(root, [train_videos, test_videos]),
+        "data/fingerprint": data_fingerprint,
         "data/train_videos": len(train_videos),
         "data/test_videos": len(test_videos),
         "data/test_clips": len(test_set),  # test items: one per video, unless split in time

@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import matplotlib
 
@@ -20,9 +20,10 @@ import torch
 from tqdm import tqdm
 
 from edr.atomic import save_figure
-from edr.data.synthetic import video_or_scene
+from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import Representation
-from edr.validate import ExistingFile, PositiveInt
+from edr.representations.base import check_enough_frames
+from edr.validate import ConfigError, ExistingFile, Range
 
 log = logging.getLogger(__name__)
 
@@ -33,13 +34,20 @@ def representation_demo(
     seed: int,
     representations: dict[str, Representation],
     video: ExistingFile | None = None,
-    frames: PositiveInt = 48,
-    height: PositiveInt = 120,
-    width: PositiveInt = 160,
+    frames: Annotated[int, Range(2)] = 48,  # the demo draws a change: two frames at least
+    height: FrameSide = 120,
+    width: FrameSide = 160,
     show_frame: int | None = None,
     pixel: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """Run each representation on the clip and draw them; returns timings and figure paths."""
+    check_enough_frames(frames, representations)
+    if pixel is not None and not (0 <= pixel[0] < height and 0 <= pixel[1] < width):
+        raise ConfigError(
+            f"task.pixel={list(pixel)}: expected (y, x) inside the {height}x{width} frame"
+        )
+    if show_frame is not None and not 0 <= show_frame < frames:
+        raise ConfigError(f"task.show_frame={show_frame}: expected 0 to {frames - 1}")
     # ---- the clip ----------------------------------------------------------------------------
     clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
     source = data["data/video"] if video else f"the generated scene of seed {seed}"
