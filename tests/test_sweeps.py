@@ -121,10 +121,12 @@ def test_submitit_local_runs_a_job_end_to_end(cli, tmp_path) -> None:
 @pytest.mark.slow
 def test_a_config_error_inside_a_submitit_job_comes_back_as_one_line(cli, tmp_path) -> None:
     """The job raises it for the sweep that waits for its result (an exit would leave none:
-    without Slurm accounting, that sweep would wait forever)."""
+    without Slurm accounting, that sweep would wait forever). edr-run checks a sweep's first
+    values before it starts (a lone task.epochs=-1 is refused there, exit 2): the bad value is
+    the second."""
     result = cli(
         "edr-run", "-m", "hydra/launcher=local_jobs", "hydra.launcher.timeout_min=10",
-        "task=kth", "debug=tiny", "task.epochs=-1", cwd=tmp_path,
+        "task=kth", "debug=tiny", "task.epochs=1,-1", cwd=tmp_path,
         env={"EDR_CACHE": str(tmp_path / "cache")},
     )  # fmt: skip
     assert result.returncode == 1, result.stderr[-3000:]

@@ -46,6 +46,19 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+def remove_partial_files(folder: str | Path) -> list[Path]:
+    """Delete the temporary files and folders (``.<name>.*partial*``) that writers killed
+    mid-write (SIGKILL, a power cut) left under ``folder``; only for a folder this process holds,
+    where no other writer is at work. Returns what was deleted."""
+    found = [p for p in Path(folder).rglob(".*partial*") if p.name.startswith(".")]
+    for path in found:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    return found
+
+
 def write_text_atomic(path: str | Path, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)

@@ -7,10 +7,12 @@
     edr-bench --events a.raw b.aedat4   # instead: read speed of event recordings (events/s)
 
 Median throughput over ``--repeats`` timed calls after a warm-up call (which also compiles the
-numba kernels). Writes a record only, ``results/bench/speed_<host>_<time>.json`` (with
-``--atari``, ``results/bench/atari_<host>_<time>.json``; with ``--events``,
-``results/bench/events_<host>_<time>.json``), and prints its table; ``edr-tables``
-renders ``paper/table2_speed.md`` and ``paper/atari_edr_cost.md`` from the records.
+numba kernels). Writes a record only, ``<out-dir>/speed_<host>_<time>.json`` (with ``--atari``,
+``atari_<host>_<time>.json``; with ``--events``, ``events_<host>_<time>.json``), and prints its
+table. ``--out-dir`` is ``results/runs/bench/`` by default, which git ignores; the committed
+records, from which ``edr-tables`` renders ``paper/table2_speed.md`` and
+``paper/atari_edr_cost.md``, are written with ``--out-dir results/bench``
+(``edr-tables --bench results/runs/bench`` renders yours).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from tqdm import tqdm
 from edr.allocator import keep_freed_memory
 from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene
-from edr.records import BenchRow, git_revision, machine_info
+from edr.records import BenchRow, bench_dir, git_revision, machine_info
 from edr.report.published import load_published
 from edr.report.speed import INFERENCE_IN_TURN, LEARNABLE, TRAIN_FUSED, TRAIN_TORCH, speed_table
 from edr.representations import (
@@ -291,7 +293,10 @@ def main(argv: list[str] | None = None) -> None:
         help="the observation's dtype, float32 as task=atari trains (--atari)",
     )
     parser.add_argument(
-        "--out-dir", type=Path, default=Path("results/bench"), help="where the record is written"
+        "--out-dir",
+        type=Path,
+        default=bench_dir(),
+        help="where the record is written (default: results/runs/bench, untracked)",
     )
     args = parser.parse_args(argv)
     repeats = 2 if args.quick else args.repeats

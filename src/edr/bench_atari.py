@@ -1,6 +1,6 @@
 """``edr-bench --atari``: what EDR costs in the Atari loop. Env steps per second of the same
 envs with and without EDR, the two taking turns, and ``task=atari``'s whole training loop with
-FDR alone and with FDR+EDR; a record per backend, ``results/bench/atari_<backend>_<host>_<time>.json``.
+FDR alone and with FDR+EDR; a record per backend, ``<out-dir>/atari_<backend>_<host>_<time>.json``.
 """
 
 from __future__ import annotations

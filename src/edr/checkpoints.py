@@ -109,3 +109,18 @@ def check_same_data(state: dict[str, Any], fingerprint: str, path: Path) -> None
             f"{path} was trained on other data (data fingerprint {seen}, now {fingerprint}): "
             "restore the data it was trained on, or pass resume=false to start over"
         )
+
+
+def progress(run_dir: Path) -> dict[str, Any] | None:
+    """How far the last checkpoint under ``run_dir`` got: its path there and its counters
+    (``{"checkpoint": "checkpoint.pt", "epoch": 3}``); None when there is none, or it cannot be
+    read. What an interrupted run's record says the next attempt resumes from."""
+    path = next(Path(run_dir).rglob(CHECKPOINT), None)
+    if path is None:
+        return None
+    try:
+        state = torch.load(path, weights_only=True, mmap=True)  # mmap: reads only what is used
+    except (EOFError, RuntimeError, OSError, ValueError):
+        return None
+    counters = {k: v for k, v in state.items() if isinstance(v, int) and not isinstance(v, bool)}
+    return {"checkpoint": str(path.relative_to(run_dir)), **counters}

@@ -8,7 +8,7 @@ Adam, in each parameterization (``log``, ``bounded``); per setting it reports th
 norm of the raw parameters at the start (median and coefficient of variation over seeds), the
 runs that diverged (a non-finite loss, or a half-life leaving [0.1, 1000]) and the half-lives
 reached. It writes a record,
-``results/bench/edr_gradients_<host>_<time>.json``, and prints the table.
+``<out-dir>/edr_gradients_<host>_<time>.json``, and prints the table.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import torch
 
 from edr.atomic import write_json_atomic
 from edr.data import synthetic_scene
-from edr.records import git_revision, machine_info
+from edr.records import bench_dir, git_revision, machine_info
 from edr.representations import EDR
 
 TARGET_HALF_LIFE = 3.8
@@ -93,7 +93,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=100, help="Adam steps per fit")
     parser.add_argument("--size", type=int, default=48, help="frame side of the scenes")
     parser.add_argument("--window", type=int, default=10, help="the truncated BPTT window")
-    parser.add_argument("--out-dir", type=Path, default=Path("results/bench"), help="records")
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        default=bench_dir(),
+        help="where the record is written (default: results/runs/bench, untracked)",
+    )
     args = parser.parse_args(argv)
     stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
     settings = [

@@ -1,6 +1,6 @@
 """Optical flow against ground truth: frame pairs made by warping a real image with known flows.
 
-``python -m edr.flow_accuracy`` writes a record, ``results/bench/flow_accuracy_<host>_<time>.json``,
+``python -m edr.flow_accuracy`` writes a record, ``<out-dir>/flow_accuracy_<host>_<time>.json``,
 and prints its table; ``edr-tables`` renders the newest into ``paper/flow_accuracy.md``: the
 average endpoint error
 (EPE, pixels) of Brox, TV-L1 and Farneback on four pairs made from the photograph matplotlib
@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from edr.atomic import write_json_atomic
-from edr.records import git_revision, machine_info
+from edr.records import bench_dir, git_revision, machine_info
 from edr.report.flow_accuracy import KINDS, flow_accuracy_table
 
 BORDER = 20  # pixels left out of the EPE on every side
@@ -118,7 +118,10 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "--out-dir", type=Path, default=Path("results/bench"), help="where the record is written"
+        "--out-dir",
+        type=Path,
+        default=bench_dir(),
+        help="where the record is written (default: results/runs/bench, untracked)",
     )
     args = parser.parse_args(argv)
     stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()

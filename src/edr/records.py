@@ -140,3 +140,11 @@ class BenchRow:
     frame_size: str  # "320x240" or "32 x 84x84"
     median_s: float  # median seconds per call
     fps: float  # input frames per second (all batch rows counted)
+
+
+def bench_dir() -> Path:
+    """Where the benchmarks (edr-bench, edr.flow_accuracy, edr.edr_gradients) write their records
+    by default: ``results/runs/bench/`` (under ``EDR_RESULTS`` when it is set), which git ignores.
+    The committed records in ``results/bench/``, which ``edr-tables`` reads, are written there
+    with ``--out-dir results/bench``."""
+    return Path(os.environ.get("EDR_RESULTS") or "results") / "runs" / "bench"

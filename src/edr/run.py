@@ -4,7 +4,7 @@ artifacts. Running the same command again skips a finished run and resumes an in
 
     edr-run                                   # the demo on a generated video
     edr-run task.video=clip.avi task.frames=120
-    edr-run -m representation=edr,edr_k3 seed=0,1
+    edr-run -m task=kth representation=edr,edr_k3 seed=0,1 debug=tiny
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import inspect
 import logging
 import os
 import random
-import signal
 import sys
 import time
 from pathlib import Path
@@ -30,9 +29,11 @@ from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from edr import CONF_DIR
-from edr.checkpoints import UnreadableCheckpoint, WriteStopped
+from edr import CONF_DIR, interrupts
+from edr.atomic import remove_partial_files
+from edr.checkpoints import UnreadableCheckpoint, WriteStopped, progress
 from edr.identity import job_dirname, run_identity, warn_ignored
+from edr.overrides import check_command_line
 from edr.records import (
     UnreadableRecord,
     check_flat,
@@ -102,6 +103,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     except OSError as error:
         raise ConfigError(f"cannot create the run folder {out_dir}: {error.strerror}") from None
     with hold_folder(out_dir):
+        remove_partial_files(out_dir)  # left by a writer killed mid-write (SIGKILL, power)
         return _run_held(cfg, out_dir)
 
 
@@ -165,6 +167,8 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
             wall_time_s=round(time.perf_counter() - started, 3),
             ended_at=now(),
         )
+        if interrupted:  # what the next attempt continues from (None: it starts over)
+            record["resumes_from"] = progress(out_dir)
         unwritten = write_last_record(out_dir, record)
         if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
             log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
@@ -196,9 +200,15 @@ def headline(metrics: dict[str, Any]) -> str:
         against = f" (chance {100 * chance:.1f} %)" if chance is not None else ""
         return f"accuracy {100 * metrics['eval/accuracy']:.1f} %{against}"
     if "eval/mean" in metrics:
-        game = metrics.get("data/game")
-        random_play = lookup(load_published(), "atari_reference_scores", game, "random")
-        against = f", random play {random_play:+g}" if random_play is not None else ""
+        if "eval/random_mean" in metrics:  # games cut short: random play under the same cap
+            against = (
+                f", random play {metrics['eval/random_mean']:+.1f} on the same games, "
+                f"also cut at {metrics['eval/max_steps']} steps"
+            )
+        else:
+            game = metrics.get("data/game")
+            random_play = lookup(load_published(), "atari_reference_scores", game, "random")
+            against = f", random play {random_play:+g}" if random_play is not None else ""
         return (
             f"mean score {metrics['eval/mean']:+.1f} over {metrics['eval/plays']} games "
             f"(min {metrics['eval/min']:+g}, max {metrics['eval/max']:+g}{against})"
@@ -220,6 +230,17 @@ def _in_sweep() -> bool:
     return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
 
 
+def main() -> None:
+    """The command line checked (a typo or a bad value: one line, before Hydra makes a run
+    folder), then Hydra's app."""
+    try:
+        check_command_line(sys.argv[1:], CONF_DIR, lambda cfg: check_config(cfg, entry=ENTRY_KEYS))
+    except ConfigError as error:
+        print(f"edr-run: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+    hydra_app()
+
+
 class JobFailed(CompactHydraException):
     """A submitit job's config error, handed back to the sweep that waits for the job's result,
     which prints it as one line (a job that exits leaves no result, and without Slurm accounting
@@ -231,7 +252,7 @@ DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCE
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
-def main(cfg: DictConfig) -> None:
+def hydra_app(cfg: DictConfig) -> None:
     """How a run ends, in one place. Refused (a bad value, an unreadable record or checkpoint,
     a folder held or of another config): one line, exit 2, before any work. Failed: the record
     says ``failed`` with the reason (written by :func:`run`); a disk's error is one line, exit 1,
@@ -241,7 +262,7 @@ def main(cfg: DictConfig) -> None:
     to the waiting sweep as one line (:class:`JobFailed`)."""
     in_job = bool(os.environ.get("SUBMITIT_EXECUTOR"))  # a Slurm or local submitit job
     if in_job:  # submitit ignores SIGTERM; scancel, a time limit or preemption end it as kill does
-        signal.signal(signal.SIGTERM, _terminate)
+        interrupts.install()
     try:
         run(cfg)
     except (ConfigError, UnreadableRecord, UnreadableCheckpoint) as error:  # one line, no trace
@@ -263,19 +284,11 @@ def main(cfg: DictConfig) -> None:
         log.error("failed: %s: %s", type(error).__name__, " ".join(str(error).split()))
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, a scheduler's preemption or time limit), ended as Ctrl-C is: the run's
-    record says ``interrupted`` and the next attempt resumes from its checkpoint."""
-
-
-def _terminate(signum: int, frame: Any) -> None:
-    raise Terminated(signal.Signals(signum).name)
-
-
 def cli() -> None:
     """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
-    of a trace (exit status 130 or 143, as the shell reports those signals)."""
-    signal.signal(signal.SIGTERM, _terminate)
+    of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
+    (:mod:`edr.interrupts`)."""
+    interrupts.install()
     try:
         main()
     except ValueError as error:  # Hydra could not open the run's log file: a folder not writable
@@ -294,7 +307,7 @@ def cli() -> None:
             "(finished runs are skipped, interrupted ones continue from their checkpoints)",
             file=sys.stderr,
         )
-        raise SystemExit(143 if isinstance(error, Terminated) else 130) from None
+        raise SystemExit(143 if isinstance(error, interrupts.Terminated) else 130) from None
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ from edr.identity import (
     IDENTITY_KEYS,
     config_diff,
     flatten,
+    ignored_overrides,
     is_semantic_override,
     warn_ignored,
 )
@@ -239,15 +240,20 @@ def outcomes_since(sweep_dir: Path, since: float) -> Counter[str]:
 
 
 def _run_each_folder_once(config: DictConfig) -> None:
-    """A swept key that cannot change a result (``threads=1,2``) would map every value to one
-    folder and run the same cell again: sweep its first value only, and say so."""
+    """A swept key that cannot change a result (``threads=1,2``, or a group the task does not
+    read: ``representation=edr,edr_k3`` for the demo) would give cells of one fingerprint, each
+    run again: sweep its first value only, and say so."""
     overrides = list(config.hydra.overrides.task)
-    kept = [o if is_semantic_override(o) or "," not in o else o.split(",")[0] for o in overrides]
+    same = set(ignored_overrides(config, overrides))
+    kept = [
+        o.split(",")[0] if "," in o and (o in same or not is_semantic_override(o)) else o
+        for o in overrides
+    ]
     if kept != overrides:
         dropped = [o for o, k in zip(overrides, kept, strict=True) if o != k]
         log.warning(
-            "warning: %s: these values do not change a result, so every one maps to the same "
-            "folder; the sweep runs each cell once, with %s",
+            "warning: %s: these values do not change a result (the same fingerprint for "
+            "each), so the sweep runs each cell once, with %s",
             " ".join(dropped),
             " ".join(k for o, k in zip(overrides, kept, strict=True) if o != k),
         )

@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
+from edr import interrupts
 from edr.atomic import atomic_path
 from edr.data.datasets import Video, VideoSet
 from edr.data.video import read_video
@@ -65,6 +66,7 @@ class ArrayCache:
     def fill(self, paths: Sequence[Path], compute: Callable[[Path], np.ndarray], desc: str) -> None:
         """Compute every missing entry, with a progress bar."""
         for path in tqdm(paths, desc=desc, unit="video", leave=False):
+            interrupts.raise_if_stopping()
             self.get(path, compute)
 
 

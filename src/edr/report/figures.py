@@ -42,14 +42,17 @@ def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFram
     ]
 
 
-def _draw_curves(
-    ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str, legend: bool = True
-) -> bool:
-    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band
-    (and a legend, unless the figure has one for every panel); False if no run has a point to
-    draw."""
+# A line style and marker per cell, beside its colour: curves that coincide (GrayDiff and
+# RGBDiff on gray video) stay visible one over the other.
+STYLES = [("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v"), ((0, (1, 2)), "P")]
+
+
+def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str) -> bool:
+    """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band;
+    False if no run has a point to draw. The figure puts the legend outside the panels
+    (:func:`_legend_outside`)."""
     drawn = False
-    for label, group in _cells(runs, labels):
+    for k, (label, group) in enumerate(_cells(runs, labels)):
         series = [[(row[x], row[y]) for row in run_history(r) if y in row] for r in group["record"]]
         series = [s for s in series if s]
         if not series:
@@ -57,12 +60,29 @@ def _draw_curves(
         n = min(len(s) for s in series)
         xs = np.array([p[0] for p in series[0][:n]])
         ys = np.array([[p[1] for p in s[:n]] for s in series])  # (runs, points)
-        ax.plot(xs, ys.mean(0), label=f"{label} ({len(series)} runs)")
-        ax.fill_between(xs, ys.min(0), ys.max(0), alpha=0.2)
+        line, marker = STYLES[k % len(STYLES)]
+        ax.plot(xs, ys.mean(0), linestyle=line, marker=marker, markevery=max(1, n // 8),
+                markersize=4, label=f"{label} ({len(series)} runs)")  # fmt: skip
+        ax.fill_between(xs, ys.min(0), ys.max(0), alpha=0.15)
         drawn = True
-    if drawn and legend:
-        ax.legend(fontsize=7)
     return drawn
+
+
+def _legend_outside(fig: plt.Figure, axes: list[plt.Axes]) -> None:
+    """One legend for the whole figure, below its panels: the figure grows by its height."""
+    handles: dict[str, Any] = {}
+    for ax in axes:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    if not handles:
+        fig.tight_layout()
+        return
+    ncol = max(1, min(len(handles), int(fig.get_figwidth() // 2.6)))
+    height = 0.25 + 0.2 * -(-len(handles) // ncol)  # inches: a row of entries each
+    fig.set_figheight(fig.get_figheight() + height)
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=ncol, fontsize=8,
+               frameon=False)  # fmt: skip
+    fig.tight_layout(rect=(0, height / fig.get_figheight(), 1, 1))
 
 
 def _curve_panels(
@@ -88,7 +108,7 @@ def _curve_panels(
         plt.close(fig)
         return None
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    _legend_outside(fig, list(axes[0]))
     return fig
 
 
@@ -117,7 +137,7 @@ def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
             plt.close(fig)
             return None
         fig.suptitle("Figure 5: training score and dead conv1 units, FDR vs FDR+EDR", fontsize=10)
-        fig.tight_layout()
+        _legend_outside(fig, list(axes.flat))
         return fig
 
     return done, draw
@@ -145,7 +165,7 @@ def learnable_edr_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
         fig, axes = plt.subplots(1, len(LEARNABLE_PANELS), figsize=(16, 4.2))
         labels = ["data.source", "choices.ablation", "scale"]
         drawn = [
-            _draw_curves(ax, done, labels, "epoch", key, legend=False)
+            _draw_curves(ax, done, labels, "epoch", key)
             for ax, key in zip(axes, LEARNABLE_PANELS, strict=True)
         ]
         if not any(drawn):
@@ -156,9 +176,7 @@ def learnable_edr_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
         axes[-1].set_yscale("log")
         fig.suptitle("Learnable EDR trained with LeNet + FT-RCN: its values and gradient per epoch",
                      fontsize=10)  # fmt: skip
-        handles, names = axes[drawn.index(True)].get_legend_handles_labels()
-        fig.legend(handles, names, loc="lower center", ncol=2, fontsize=8)  # one, below the panels
-        fig.tight_layout(rect=(0, 0.16, 1, 1))
+        _legend_outside(fig, list(axes))
         return fig
 
     return done, draw
@@ -178,17 +196,39 @@ def _cell_means(
 
 
 def _per_class(done: pd.DataFrame) -> plt.Figure | None:
-    classes, cells = _cell_means(done, "metrics.eval/per_class/", ["choices.representation"])
-    if not classes or not cells:
+    """Heat maps, one per data set (its classes differ): a row per cell, a column per class,
+    each square the mean accuracy over the cell's runs, written in it."""
+    labels = ["choices.representation", "choices.ablation", "scale"]
+    sources = done["data.source"] if "data.source" in done else pd.Series("", index=done.index)
+    panels = []
+    for source, runs in done.groupby(sources.fillna("unrecorded"), sort=True):
+        classes, cells = _cell_means(runs, "metrics.eval/per_class/", labels)
+        if classes and cells:
+            counts = [len(group) for _, group in _cells(runs, labels)]
+            rows = [
+                f"{label.replace(' / None', '').replace(' / nan', '')} ({n} run{'s' * (n != 1)})"
+                for (label, _), n in zip(cells, counts, strict=True)
+            ]
+            panels.append((str(source), classes, rows, np.array([m for _, m in cells])))
+    if not panels:
         return None
-    fig, ax = plt.subplots(figsize=(max(6, 0.5 * len(classes) * len(cells)), 3.5))
-    width = 0.8 / len(cells)
-    for k, (label, means) in enumerate(cells):
-        ax.bar(np.arange(len(classes)) + k * width, means, width, label=label)
-    ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=60, fontsize=7)
-    ax.set(title="Figure 6: per-class accuracy by representation", ylabel="accuracy", ylim=(0, 1))
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+    widths = [max(2.5, 0.6 * len(classes)) for _, classes, _, _ in panels]
+    height = 0.4 * max(len(rows) for _, _, rows, _ in panels) + 2.4
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(sum(widths) + 3.2 * len(panels) + 1, height), squeeze=False,
+        layout="constrained", gridspec_kw={"width_ratios": widths},
+    )  # fmt: skip
+    for ax, (source, classes, rows, values) in zip(axes[0], panels, strict=True):
+        image = ax.imshow(values, cmap="viridis", vmin=0, vmax=1, aspect="auto")
+        for (i, j), value in np.ndenumerate(values):
+            if np.isfinite(value):
+                ax.text(j, i, f"{100 * value:.0f}", ha="center", va="center", fontsize=8,
+                        color="white" if value < 0.6 else "black")  # fmt: skip
+        ax.set_xticks(range(len(classes)), classes, rotation=45, ha="right", fontsize=8)
+        ax.set_yticks(range(len(rows)), rows, fontsize=8)
+        ax.set_title(f"{source} data", fontsize=9)
+    fig.colorbar(image, ax=list(axes[0]), label="accuracy, mean over runs")
+    fig.suptitle("Figure 6: per-class test accuracy (%), by representation", fontsize=10)
     return fig
 
 
@@ -219,18 +259,33 @@ def fig7b_dvs_confusion(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     return done, lambda: _confusion(done)
 
 
+def _layer_names(layers: list[str]) -> list[str]:
+    """``representation``, ``backbone.features.1``, ... -> what a reader calls them: the
+    representation's output, then each ReLU of the backbone in order, its module beside."""
+    names, relu = [], 0
+    for layer in layers:
+        if layer == "representation":
+            names.append("representation\n(its output)")
+        else:
+            relu += 1
+            names.append(f"ReLU {relu}\n({layer.removeprefix('backbone.')})")
+    return names
+
+
 def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
     labels = ["choices.backbone", "choices.representation", "scale"]
     layers, cells = _cell_means(done, "metrics.sparsity/", labels)
     if not layers or not cells:
         return None
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    for label, values in cells:
-        ax.plot(range(len(layers)), values, "o-", label=label)
-    ax.set_xticks(range(len(layers)), layers, rotation=60, fontsize=7)
-    ax.set(title="Figure 11: fraction of zero activations per layer", ylabel="zeros", ylim=(0, 1))
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    for k, (label, values) in enumerate(cells):
+        line, marker = STYLES[k % len(STYLES)]
+        ax.plot(range(len(layers)), values, linestyle=line, marker=marker, label=label)
+    ax.set_xticks(range(len(layers)), _layer_names(layers), fontsize=8)
+    ax.set(title="Figure 11: how sparse each layer's output is (one clip batch)",
+           xlabel="layer, from the input up", ylabel="fraction of outputs exactly 0",
+           ylim=(-0.02, 1.02))  # fmt: skip
+    _legend_outside(fig, [ax])
     return fig
 
 

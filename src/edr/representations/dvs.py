@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from numba import njit
 
+from edr.data.events.checks import EVENT_DTYPE
 from edr.representations.base import (
     FULL_SCALE,
     Features,
@@ -32,7 +33,6 @@ from edr.representations.base import (
 from edr.validate import NonNegativeFloat, PositiveFloat, check_arguments
 
 TILE_PIXELS = 1 << 18  # DVSCamera simulates this many pixels at a time (bounded memory)
-EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
 
 @njit(cache=True)

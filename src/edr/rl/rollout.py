@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDictBase
+from torch import nn
 from torchrl.envs import EnvBase
 
 from edr.models.paac import PAACNetwork
@@ -57,7 +58,7 @@ class Actor:
     def __init__(
         self,
         env: EnvBase,
-        network: PAACNetwork,
+        network: PAACNetwork | UniformPolicy,
         frame_stack: int = 1,
         clock: PhaseClock | None = None,
     ) -> None:
@@ -155,3 +156,19 @@ class Actor:
                 break
         self._td = None
         return scores.tolist()
+
+
+class UniformPolicy(nn.Module):
+    """Random play in an :class:`Actor`: every action equally likely, whatever the frames."""
+
+    state_size = 0
+
+    def __init__(self, num_actions: int) -> None:
+        super().__init__()
+        self.num_actions = num_actions
+
+    def forward(
+        self, frames: list[torch.Tensor], h: torch.Tensor, c: torch.Tensor, is_init: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        n = h.shape[0]
+        return torch.zeros(n, self.num_actions), torch.zeros(n, 1), h, c  # logits (N, A)

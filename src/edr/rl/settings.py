@@ -110,3 +110,9 @@ class EvalSettings:
 
     plays: PositiveInt = 30  # whole games, played at once on as many envs
     max_steps: PositiveInt = 27_000  # agent steps at most per game
+
+    @property
+    def capped(self) -> bool:
+        """Games cut shorter than the published protocol's (27,000 agent steps, 30 minutes):
+        the published random play is then no yardstick, and the run measures its own."""
+        return self.max_steps < EvalSettings.max_steps

@@ -26,6 +26,7 @@ import torch
 from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
+from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
@@ -46,7 +47,7 @@ from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.loss import n_step_returns, paac_loss
 from edr.rl.optim import make_optimizer
 from edr.rl.phases import PhaseClock
-from edr.rl.rollout import Actor, observations_held
+from edr.rl.rollout import Actor, UniformPolicy, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
     EnvSettings,
@@ -170,6 +171,7 @@ def train_paac(
         update = 0
         while steps_done < env_steps:
             update += 1
+            interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
             dead_units.reset()
             try:
                 rollout = actor.rollout(loss.rollout_steps)  # the envs' steps, forward passes
@@ -232,6 +234,12 @@ def train_paac(
     else:
         save()
         scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
+    # games cut short: random play under the same cap, on the same games, is the yardstick
+    random_scores = (
+        _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, env.frame_stack, backend, seed,
+                  evaluation)
+        if evaluation.capped and scores else None
+    )  # fmt: skip
 
     # ---- results -----------------------------------------------------------------------------
     save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
@@ -248,8 +256,16 @@ def train_paac(
         **_prefixed(losses),
         **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
         **_score_metrics(scores),
+        **_random_metrics(random_scores, evaluation),
         **diverged,
     }
+
+
+def _random_metrics(scores: list[float] | None, evaluation: EvalSettings) -> dict[str, float]:
+    """Random play's mean under the evaluation's cap, when the run measured it."""
+    if scores is None:
+        return {}
+    return {"eval/random_mean": float(np.mean(scores)), "eval/max_steps": evaluation.max_steps}
 
 
 def _diverged(env_steps: int, update: int, reason: str) -> dict[str, Any]:
@@ -346,7 +362,7 @@ def _network(
 
 
 def _evaluate(
-    network: PAACNetwork, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend,
+    network: PAACNetwork | UniformPolicy, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend,
     seed: int, settings: EvalSettings,
 ) -> list[float]:  # fmt: skip
     """Raw scores of ``settings.plays`` whole games (no life loss, no clipping), played at once

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
@@ -202,6 +203,7 @@ def dvs_transfer(
         backbone.train()
         order = torch.randperm(len(train_x))
         for i in range(0, len(order), batch_size):
+            interrupts.raise_if_stopping()
             batch, step = order[i : i + batch_size], step + 1
             loss = loss_fn(backbone(train_x[batch]), train_y[batch])
             reason = divergence(backbone, loss)

@@ -36,7 +36,7 @@ from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import FDR, DVSCamera, Representation
 from edr.representations.base import check_enough_frames, to_gray
 from edr.representations.dvs import EVENT_DTYPE
-from edr.validate import ExistingFile, FilePath, PositiveFloat, PositiveInt
+from edr.validate import ExistingFile, PositiveFloat, PositiveInt
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +126,7 @@ def event_camera(
     out_dir: Path,
     seed: int,
     representations: dict[str, Representation],
-    video: FilePath | None = None,
+    video: ExistingFile | None = None,
     frames: PositiveInt = 90,
     height: FrameSide = 120,
     width: FrameSide = 160,

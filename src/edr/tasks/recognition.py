@@ -21,6 +21,7 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
+from edr import interrupts
 from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
@@ -78,6 +79,7 @@ def evaluate(
     for crops, labels in tqdm(
         DataLoader(dataset, batch_size=batch_videos), desc="test", unit="batch", leave=False
     ):
+        interrupts.raise_if_stopping()
         b, n = crops.shape[:2]
         logits = model(crops.flatten(0, 1).to(device))  # (B*10, classes)
         scores = logits.softmax(-1).view(b, n, -1).mean(1)
@@ -219,6 +221,7 @@ def fit_recognition(
         total, correct, loss_sum, edr_grad_norms = 0, 0, 0.0, []
         bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", unit="batch")
         for step, (clips, labels) in enumerate(bar, start=1):
+            interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
             clips, labels = clips.to(dev), labels.to(dev)
             logits = model(clips)
             loss = loss_fn(logits, labels)

@@ -23,7 +23,7 @@ from edr.atomic import save_figure
 from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import Representation
 from edr.representations.base import check_enough_frames
-from edr.validate import ConfigError, FilePath, Range
+from edr.validate import ConfigError, ExistingFile, Range
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ def representation_demo(
     out_dir: Path,
     seed: int,
     representations: dict[str, Representation],
-    video: FilePath | None = None,
+    video: ExistingFile | None = None,
     frames: Annotated[int, Range(2)] = 48,  # the demo draws a change: two frames at least
     height: FrameSide = 120,
     width: FrameSide = 160,

@@ -11,8 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from edr.representations.dvs import EVENT_DTYPE
 from edr.validate import ConfigError
+
+# One event: time (µs), position, polarity (1 ON, 0 OFF), as every reader returns it and as the
+# simulated camera (representations/dvs.py) writes it.
+EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
 CHUNK_EVENTS = 1 << 20  # events a reader decodes at a time: memory stays bounded on a large file
 # The widest sensor any format here addresses (EVT 3.0: 11-bit x and y). A recording that does

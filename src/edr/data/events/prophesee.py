@@ -26,8 +26,7 @@ import numpy as np
 from numba import njit
 
 from edr.atomic import atomic_path
-from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of, joined
-from edr.representations.dvs import EVENT_DTYPE
+from edr.data.events.checks import CHUNK_EVENTS, EVENT_DTYPE, RecordingError, events_of, joined
 
 # The sensor of a Prophesee camera whose header names only its plugin (hal_plugin_<key>_...)
 PLUGIN_SENSORS = {"gen3": (480, 640), "gen31": (480, 640), "gen4": (720, 1280),

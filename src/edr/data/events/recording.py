@@ -16,8 +16,7 @@ from typing import Any
 import numpy as np
 
 from edr.data.events import datasets, jaer, prophesee
-from edr.data.events.checks import MAX_SIDE, Checked, RecordingError, joined
-from edr.representations.dvs import EVENT_DTYPE
+from edr.data.events.checks import EVENT_DTYPE, MAX_SIDE, Checked, RecordingError, joined
 from edr.validate import ConfigError
 
 

@@ -1,0 +1,51 @@
+"""Ctrl-C and SIGTERM: a run stops on the first one, within seconds, wherever it lands.
+
+The first signal raises :class:`KeyboardInterrupt` (SIGTERM: :class:`Terminated`) in the main
+thread. Python prints and drops an exception raised in a garbage collector's callback or a
+``__del__`` ("Exception ignored in ..."), so a signal landing there would leave training
+running: the training loops call :func:`raise_if_stopping` once a step, which raises it again.
+Signals after the first are dropped: the run is already stopping and writing its record, and a
+second Ctrl-C must not cut that short with a traceback.
+"""
+
+from __future__ import annotations
+
+import signal
+from types import FrameType
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a scheduler's preemption or time limit), ended as Ctrl-C is: the run's
+    record says ``interrupted`` and the next attempt resumes from its checkpoint."""
+
+
+class _State:
+    first: int | None = None  # the signal the run is stopping on, once one came
+
+
+def _interrupt(signum: int) -> KeyboardInterrupt:
+    return (
+        Terminated(signal.Signals(signum).name) if signum == signal.SIGTERM else KeyboardInterrupt()
+    )
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    if _State.first is None:  # later ones: already stopping
+        _State.first = signum
+        raise _interrupt(signum)
+
+
+def install() -> None:
+    """Stop on the first SIGINT or SIGTERM as described above (from the main thread)."""
+    _State.first = None
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _on_signal)
+
+
+def raise_if_stopping() -> None:
+    """Raise the interrupt of a signal that came before, if one did: a loop still running then
+    had it dropped somewhere (a callback, a ``__del__``)."""
+    if _State.first is not None:
+        raise _interrupt(_State.first)

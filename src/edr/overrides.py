@@ -1,0 +1,142 @@
+"""The command line's overrides, checked before Hydra composes them or makes a run folder.
+
+A key that does not exist is refused in one line naming the nearest real one, whether it was
+typed plainly (Hydra: "not in struct", several lines) or with ``+`` (Hydra adds it silently,
+and the run goes on in a folder named after the typo). A ``+`` addition is legal inside a node
+that builds an object, where it names one of that object's arguments
+(``+representation.parameterization=bounded``); nowhere else.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+from hydra._internal.utils import get_args_parser
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override
+from hydra.errors import HydraException
+from hydra.utils import get_object
+from omegaconf import DictConfig
+
+from edr.validate import ConfigError
+
+
+def _first_values(overrides: Sequence[Override]) -> list[str]:
+    """Each override as ``key=value`` with a sweep's first value: one job of the sweep."""
+    lines = []
+    for override in overrides:
+        if override.is_delete():
+            lines.append(override.input_line)
+        elif override.is_sweep_override():
+            lines.append(f"{override.get_key_element()}={next(override.sweep_string_iterator())}")
+        else:
+            lines.append(f"{override.get_key_element()}={override.get_value_element_as_str()}")
+    return lines
+
+
+def _missing(cfg: DictConfig, dotted: str, added: bool) -> tuple[str, list[str], list[str]] | None:
+    """None when ``dotted`` may be set (``added``: with ``+``); else what is wrong and the names
+    that would do (keys there, arguments to add). A ``+`` addition must name an argument of its parent node's target."""
+    *parents, name = dotted.split(".")
+    node: object = cfg
+    for part in parents:
+        if not isinstance(node, DictConfig):
+            return None  # inside a value (a list, a string): Hydra's own check
+        if part not in node:
+            return f"no such key {part}", [str(k) for k in node], []
+        node = node[part]
+    if not isinstance(node, DictConfig):
+        return None
+    keys = [str(k) for k in node if not str(k).startswith("_")]
+    if added and name in node:
+        return f"{name} is a key already", keys, []
+    if not added:
+        return None if name in node else (f"no such key {name}", keys, [])
+    if "_target_" not in node:
+        return f"no such key {name}, and only an object's argument can be added", keys, []
+    target = get_object(node["_target_"])
+    parameters = inspect.signature(target).parameters
+    if name in parameters or any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
+        return None
+    owner = getattr(target, "__name__", str(target))
+    return f"{owner} takes no argument {name}", keys, list(parameters)
+
+
+def check_command_line(
+    argv: Sequence[str], conf_dir: str | Path, check: Callable[[DictConfig], None]
+) -> None:
+    """:class:`ConfigError` in one line for the first override of ``argv`` that names no real key
+    or option, then ``check`` on the config composed (a sweep: with each value's first choice)."""
+    args, _ = get_args_parser().parse_known_args(list(argv))
+    if args.shell_completion or args.help or args.hydra_help or args.info:
+        return
+    if args.config_name or args.config_path or args.config_dir:
+        return  # another config than ours: Hydra checks it
+    try:
+        parsed = OverridesParser.create().parse_overrides(args.overrides)
+    except HydraException as error:
+        raise ConfigError(" ".join(str(error).split())) from None
+    ours = [o for o in parsed if not o.key_or_group.startswith("hydra")]
+    groups = sorted(p.name for p in Path(conf_dir).iterdir() if p.is_dir())
+    chosen = [o for o in ours if o.key_or_group in groups]
+    with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
+        for override in chosen:  # an option that does not exist
+            options = sorted(
+                f.stem for f in (Path(conf_dir) / override.key_or_group).glob("*.yaml")
+            )
+            values = list(override.sweep_string_iterator()) if override.is_sweep_override() else [
+                override.get_value_element_as_str()]  # fmt: skip
+            for value in values:
+                if value not in (*options, "null"):
+                    raise ConfigError(
+                        f"{override.key_or_group}={value}: no such option{_nearest(value, options)}; "
+                        f"the options: {', '.join(options)}"
+                    )
+        base = compose("config", overrides=_first_values(chosen), return_hydra_config=True)
+        task = base.hydra.runtime.choices.get("task")
+        keys_given = {o.key_or_group for o in chosen}
+        for override in ours:
+            key = override.key_or_group
+            if key in groups or override.is_delete():
+                continue
+            if override.is_force_add() and _missing(base, key, added=False) is None:
+                continue  # ++ on a key that exists: a plain change
+            if missing := _missing(base, key, override.is_add() or override.is_force_add()):
+                raise ConfigError(_refusal(override, missing, task, given="task" in keys_given))
+        try:
+            cfg = compose("config", overrides=_first_values(ours), return_hydra_config=True)
+        except HydraException as error:
+            raise ConfigError(" ".join(str(error).split())) from None
+    HydraConfig.instance().set_config(cfg)  # ${hydra:...} resolves as in the run
+    check(cfg)
+
+
+def _refusal(
+    override: Override, missing: tuple[str, list[str], list[str]], task: str, given: bool
+) -> str:
+    """``task.epoch=3: no such key epoch in task=kth; did you mean task.epochs=3?``"""
+    problem, keys, arguments = missing
+    key = override.key_or_group
+    wrong = (
+        problem.split()[3].rstrip(",") if problem.startswith("no such key") else key.split(".")[-1]
+    )
+    where = ""
+    if key.startswith("task."):
+        where = f" in task={task}" + ("" if given else " (the default: pick one with task=...)")
+    line = f"{override.input_line}: {problem.removesuffix(',')}{where}"
+    close = difflib.get_close_matches(wrong, keys + arguments, n=1, cutoff=0.6)
+    if not close:
+        return line
+    value = override.input_line.split("=", 1)[1] if "=" in override.input_line else ""
+    plus = "" if close[0] in keys else "+"  # a key that exists is set plainly
+    return f"{line}; did you mean {plus}{key.replace(wrong, close[0], 1)}={value}?"
+
+
+def _nearest(word: str, choices: list[str]) -> str:
+    close = difflib.get_close_matches(word, choices, n=1, cutoff=0.6)
+    return f" (did you mean {close[0]}?)" if close else ""
