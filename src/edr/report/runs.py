@@ -211,10 +211,13 @@ def load_runs(roots: Iterable[str | Path]) -> pd.DataFrame:
     each, oldest first; a record that cannot be used is a row of status ``unreadable`` with the
     reason in ``error``."""
     found = [_find(Path(root)) for root in roots]
-    paths = sorted({p.resolve() for records, _ in found for p in records},
-                   key=lambda p: p.stat().st_mtime)  # fmt: skip
+    paths = sorted({p.resolve() for records, _ in found for p in records})
     rows = [_read(path) for path in paths] + [row for _, links in found for row in links]
+    # oldest first by the record's own end time, not the file's (a clone resets mtimes), so the
+    # same records render the same tables on any checkout
     frame = pd.DataFrame(rows)
+    if "ended_at" in frame:
+        frame = frame.sort_values(["ended_at", "record"], na_position="first", kind="stable")
     return frame.reindex(columns=[*BASE_COLUMNS, *(c for c in frame if c not in BASE_COLUMNS)])
 
 
