@@ -167,8 +167,9 @@ status() {
         pid="$(pid_of "$name" || true)"
         say "$name: ${pid:-not running}"
     done
-    state="$(node_state)"
-    if [[ -z "$(pid_of slurmctld || true)" || -z "$state" ]]; then
+    state=""  # sinfo without a controller waits on DNS lookups for minutes: ask only a live one
+    if [[ -n "$(pid_of slurmctld || true)" && -f "$CONF" ]]; then state="$(node_state)"; fi
+    if [[ -z "$state" ]]; then
         say "down (start it: eval \"\$(sweeps/slurm-local.sh start)\")"
         return 1
     fi

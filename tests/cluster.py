@@ -20,10 +20,16 @@ def slurm_environment() -> dict[str, str] | None:
         return None
     env = dict(os.environ)
     if "SLURM_CONF" not in env:
-        status = subprocess.run(["bash", str(LOCAL_CLUSTER), "status"], capture_output=True,
-                                text=True, timeout=60)  # fmt: skip
-        if status.returncode == 0:
-            env["SLURM_CONF"] = status.stdout.strip().split("=", 1)[1]
+        try:
+            status = subprocess.run(["bash", str(LOCAL_CLUSTER), "status"], capture_output=True,
+                                    text=True, timeout=60)  # fmt: skip
+        except subprocess.TimeoutExpired:
+            return None
+        if status.returncode != 0:
+            return None  # no local cluster, and no other named by SLURM_CONF
+        env["SLURM_CONF"] = status.stdout.strip().split("=", 1)[1]
+    elif not Path(env["SLURM_CONF"]).is_file():
+        return None  # a stale SLURM_CONF: sinfo would wait on DNS lookups for minutes
     try:
         states = subprocess.run(["sinfo", "-h", "-o", "%t"], env=env, capture_output=True,
                                 text=True, timeout=30)  # fmt: skip

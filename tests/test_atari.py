@@ -118,10 +118,11 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
     assert evaluated["train/env_steps"] == 1280 and evaluated["eval/plays"] == 1
     assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
-    (tmp_path / "bare").mkdir()
-    (tmp_path / "bare" / "run.json").write_text((tmp_path / "run.json").read_text())
+    bare = tmp_path.with_name(f"{tmp_path.name}_bare")  # beside the run: no run in a run's folder
+    bare.mkdir()
+    (bare / "run.json").write_text((tmp_path / "run.json").read_text())
     with pytest.raises(FileNotFoundError, match=r"has no checkpoint\.pt: a run writes one"):
-        evaluate_checkpoint(tmp_path / "bare")
+        evaluate_checkpoint(bare)
     monkeypatch.setattr(atari, "n_step_returns", real_returns)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
 

@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--published", type=Path, default=PUBLISHED, help="published numbers")
     args = parser.parse_args(argv)
     try:
-        runs, out_dir, published = _scope(args.runs, args.out, args.published)
+        runs, out_dir, published = _scope(args.runs, args.out, args.published, args.bench)
     except (Refused, BadPublished) as error:
         print(f"edr-tables: {error}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _scope(
-    roots: list[Path] | None, out: Path | None, published_path: Path
+    roots: list[Path] | None, out: Path | None, published_path: Path, bench_dir: Path
 ) -> tuple[pd.DataFrame, Path, dict[str, Any]]:
     """(the records, the output folder, the published numbers) edr-tables renders; each way it
     refuses, :class:`Refused` in one line."""
@@ -223,8 +223,8 @@ def _scope(
             )
     scope = roots or list(COMMITTED_SCOPE)
     runs = load_runs([p for p in scope if p.is_dir()])
-    if runs.empty:
-        raise Refused(f"no records found under {', '.join(map(str, scope))}")
+    if runs.empty and not any(bench_dir.glob("*.json")):  # bench records alone render too
+        raise Refused(f"no records found under {', '.join(map(str, [*scope, bench_dir]))}")
     return runs, out or PAPER, published
 
 
