@@ -26,8 +26,8 @@ from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
 from edr.data.events import list_recordings, read_recording, sensor_of
 from edr.data.fingerprint import files_fingerprint
+from edr.models.divergence import divergence
 from edr.representations import EDR, DVSSimulator, events_to_frames
-from edr.tasks.divergence import divergence
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted

@@ -36,11 +36,11 @@ from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSo
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
+from edr.models.divergence import divergence
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
 from edr.representations import EDR, Representation
 from edr.representations.base import check_enough_frames
-from edr.tasks.divergence import divergence
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import open_logger
