@@ -133,33 +133,51 @@ def train_paac(
     finally:
         progress.close()
         envs.close()
-    scores: list[float] = []
     if not diverged:
         save()
-        scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
-    # games cut short: random play under the same cap, on the same games, is the yardstick
-    random_scores = (
-        _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, env.frame_stack, backend, seed,
-                  evaluation)
-        if evaluation.capped and scores else None
-    )  # fmt: skip
+    scores, evaluated = _evaluation(net, env_kwargs, env.frame_stack, backend, seed, evaluation,
+                                    played=not diverged)  # fmt: skip
     save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
     _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
-    scored = [row for row in history if "train/score" in row]
     return {
         "data/source": "emulator" if env.env_id is None else "gymnasium",
         "data/game": env.name,
         "data/fingerprint": fingerprint,
-        "train/env_steps": progress.steps_done,
+        **_training_metrics(history, progress.steps_done, learner.losses),
+        **evaluated,
+        **diverged,
+    }
+
+
+def _training_metrics(
+    history: list[dict[str, float]], steps_done: int, losses: dict[str, float]
+) -> dict[str, Any]:
+    """The record's ``train/`` and ``dead/`` part: env steps trained, speed, the first and last
+    training scores, the last update's losses and the last row's dead units."""
+    scored = [row for row in history if "train/score" in row]
+    return {
+        "train/env_steps": steps_done,
         "train/fps": history[-1]["train/fps"] if history else float("nan"),
         "train/score_first": scored[0]["train/score"] if scored else None,
         "train/score_last": scored[-1]["train/score"] if scored else None,
-        **learner.losses,
+        **losses,
         **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
-        **_score_metrics(scores),
-        **_random_metrics(random_scores, evaluation),
-        **diverged,
     }
+
+
+def _evaluation(
+    net: PAACNetwork, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend, seed: int,
+    evaluation: EvalSettings, played: bool,
+) -> tuple[list[float], dict[str, Any]]:  # fmt: skip
+    """The evaluation games' raw scores (none unless ``played``) and the record's ``eval/``
+    part; games cut short by ``max_steps`` get random play's mean on the same games beside."""
+    scores = _evaluate(net, env_kwargs, frame_stack, backend, seed, evaluation) if played else []
+    random_scores = (
+        _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, frame_stack, backend, seed,
+                  evaluation)
+        if evaluation.capped and scores else None
+    )  # fmt: skip
+    return scores, {**_score_metrics(scores), **_random_metrics(random_scores, evaluation)}
 
 
 def _training_envs(

@@ -55,6 +55,7 @@ from edr.validate import (
     NonNegativeInt,
     PositiveFloat,
     PositiveInt,
+    torch_device,
 )
 
 log = logging.getLogger(__name__)
@@ -144,70 +145,57 @@ def fit_recognition(
     ``normalize_input``: each channel of the backbone's input standardised
     (:func:`edr.models.input_norm`), whatever the representation."""
     _check_sizes(crop, resize, frames, representation)
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    dev = torch.device(device)
+    dev = torch_device(device)
     data = _Data.find(data_root, synthetic, cache_dir, videos)
     checkpoint = out_dir / CHECKPOINT
     state = load_checkpoint(checkpoint) if resume else None
     if state is not None:  # a checkpoint goes on only on the data it trained on
         check_same_data(state, data.fingerprint, checkpoint)
     frame_source = VideoSource(cache_dir, size=tuple(resize), gray=gray, max_frames=max_frames)
-    online, source, clip_frames = _clip_source(
-        representation, frame_source, cache_dir, frames, data
+    online, train_set, test_set, clip_frames = _clip_sets(
+        representation, frame_source, cache_dir, data, frames, crop, scales, shuffle_frames
     )
-    negate = representation.hflip_negate if online is None else ()
-    clips = {"frames": frames, "crop": crop, "negate": negate, "shuffle_frames": shuffle_frames}
-    train_set = ClipDataset(data.train, source, train=True, scales=scales, **clips)
-    test_set = ClipDataset(data.test, source, train=False, **clips)
 
     # ---- model, optimizer --------------------------------------------------------------------
-    backbone_args = {
-        "in_channels": representation.out_channels(frame_source.channels),
-        "num_classes": len(data.classes),
-        "frames": clip_frames,
-        "height": crop,
-        "width": crop,
-    }
-    norm = input_norm(backbone_args["in_channels"]) if normalize_input else None
+    in_channels = representation.out_channels(frame_source.channels)
+    backbone_args = {"in_channels": in_channels, "num_classes": len(data.classes),
+                     "frames": clip_frames, "height": crop, "width": crop}  # fmt: skip
+    norm = input_norm(in_channels) if normalize_input else None
     model = RecognitionModel(online, backbone(**backbone_args), norm).to(dev)
     opt = optimizer(model.parameters())
     scheduler = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(milestones), gamma=gamma)
     parts = {"model": model, "optimizer": opt, "scheduler": scheduler}
-    history: list[dict[str, float]] = []  # a row per epoch trained
+    history: list[dict[str, float]] = state["history"] if state else []  # a row per epoch
     if state is not None:
         restore(state, parts)
-        history = state["history"]
 
     # ---- training ----------------------------------------------------------------------------
-    def loader() -> DataLoader:
-        """An epoch: ``clips_per_epoch`` training clips drawn with replacement."""
-        sampler = RandomSampler(train_set, replacement=True, num_samples=clips_per_epoch)
-        return DataLoader(
-            train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers
-        )
-
     def save() -> None:
         save_checkpoint(checkpoint, parts, history=history, epoch=len(history),
                         **{DATA_FINGERPRINT: data.fingerprint})  # fmt: skip
 
+    loader = functools.partial(_epoch_loader, train_set, clips_per_epoch, batch_size, num_workers)
     scalars = open_logger(logger, out_dir, step=len(history))
     diverged = _epochs(
         model, opt, scheduler, loader, test_set, dev, history, epochs, eval_every, scalars, save
     )
 
     # ---- final evaluation --------------------------------------------------------------------
-    metrics: dict[str, Any] = {
-        **data.metrics(data_root, synthetic, test_set, shuffle_frames),
-        **_finish(out_dir, model, train_set, test_set, dev, history, data.classes, {
-            "online": online is not None, "input_norm": normalize_input,
-            "backbone_args": backbone_args,
-        }),
-        **diverged,
-    }  # fmt: skip
+    rebuild = {"online": online is not None, "input_norm": normalize_input,
+               "backbone_args": backbone_args}  # fmt: skip
+    metrics = _finish(out_dir, model, train_set, test_set, dev, history, data.classes, rebuild)
     if diverged:  # what a network of NaNs predicts is no accuracy
         metrics["eval/accuracy"] = float("nan")
-    return Fitted(model, metrics)
+    data_part = data.metrics(data_root, synthetic, test_set, shuffle_frames)
+    return Fitted(model, {**data_part, **metrics, **diverged})
+
+
+def _epoch_loader(
+    train_set: ClipDataset, clips_per_epoch: int, batch_size: int, num_workers: int
+) -> DataLoader:
+    """An epoch: ``clips_per_epoch`` training clips drawn with replacement."""
+    sampler = RandomSampler(train_set, replacement=True, num_samples=clips_per_epoch)
+    return DataLoader(train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers)
 
 
 class _Data(NamedTuple):
@@ -340,20 +328,28 @@ def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
         )
 
 
-def _clip_source(
-    representation: Representation, frame_source: VideoSource, cache_dir: str, frames: int,
-    data: _Data,
-) -> tuple[Representation | None, Callable, int]:  # fmt: skip
+def _clip_sets(
+    representation: Representation, frame_source: VideoSource, cache_dir: str, data: _Data,
+    frames: int, crop: int, scales: Sequence[float], shuffle_frames: bool,
+) -> tuple[Representation | None, ClipDataset, ClipDataset, int]:  # fmt: skip
     """Every video decoded (and, for a precomputed representation, computed once, like the
     paper's flows) into the caches; returns the representation the model computes on the fly
-    (None when precomputed), the clips' source and the frames of a clip the backbone sees."""
+    (None when precomputed), the training and test clips, and the frames of a clip the
+    backbone sees."""
     paths = [v.path for v in data.train.videos + data.test.videos]
     frame_source.cache.fill(paths, frame_source.decode, desc="decoding")
-    if not representation.precompute:
-        return representation, frame_source, representation.out_frames(frames)
-    source = PrecomputedSource(frame_source, representation, cache_dir)
-    source.cache.fill(paths, source.compute, desc=f"precomputing {type(representation).__name__}")
-    return None, source, frames
+    if representation.precompute:
+        source: Callable = PrecomputedSource(frame_source, representation, cache_dir)
+        name = type(representation).__name__
+        source.cache.fill(paths, source.compute, desc=f"precomputing {name}")
+        online, clip_frames, negate = None, frames, representation.hflip_negate
+    else:
+        source, online, negate = frame_source, representation, ()
+        clip_frames = representation.out_frames(frames)
+    clips = {"frames": frames, "crop": crop, "negate": negate, "shuffle_frames": shuffle_frames}
+    train_set = ClipDataset(data.train, source, train=True, scales=scales, **clips)
+    test_set = ClipDataset(data.test, source, train=False, **clips)
+    return online, train_set, test_set, clip_frames
 
 
 def _train_epoch(
