@@ -51,8 +51,12 @@ def _body(path, header_prefix: bytes) -> bytes:
     return raw[at:]
 
 
-def test_evt3_matches_the_evt3_decoder(shared) -> None:
+@pytest.mark.parametrize("chunk", [1 << 20, 10_007])  # one chunk; many, the decoder state carried
+def test_evt3_matches_the_evt3_decoder(shared, monkeypatch, chunk) -> None:
+    from edr.data.events import prophesee
+
     evt3 = pytest.importorskip("evt3")
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", chunk)  # words a chunk
     path = shared / "evt3_sample.raw"
     theirs = evt3.decode_file(str(path))
     events = read_recording(path)
@@ -61,17 +65,45 @@ def test_evt3_matches_the_evt3_decoder(shared) -> None:
     assert recording_sensor_size(path) == (theirs.sensor_height, theirs.sensor_width) == (720, 1280)
 
 
-def test_aedat4_matches_the_aedat_decoder(shared) -> None:
+def _aedat_decoder_events(path) -> tuple[np.ndarray, dict]:
+    """The first events stream of an AEDAT 4 file as the ``aedat`` package decodes it: its
+    events (N,) (t, x, y, on) and its stream's description."""
     aedat = pytest.importorskip("aedat")
-    pytest.importorskip("faery")
-    path = shared / "sample.aedat4"
     decoder = aedat.Decoder(str(path))
-    stream = next(i for i, s in decoder.id_to_stream().items() if s["type"] == "events")
+    stream = min(i for i, s in decoder.id_to_stream().items() if s["type"] == "events")
     packets = [p["events"] for p in decoder if p["stream_id"] == stream and "events" in p]
-    theirs = np.concatenate(packets)
-    _assert_same(read_recording(path), theirs["t"], theirs["x"], theirs["y"], theirs["on"])
-    info = decoder.id_to_stream()[stream]
+    return np.concatenate(packets), decoder.id_to_stream()[stream]
+
+
+@pytest.mark.parametrize("chunk", [1 << 20, 5_000])  # one chunk; packets joined into many
+def test_aedat4_matches_the_aedat_decoder(shared, monkeypatch, chunk) -> None:
+    from edr.data.events import aedat4
+
+    monkeypatch.setattr(aedat4, "CHUNK_EVENTS", chunk)
+    path = shared / "sample.aedat4"  # LZ4-compressed packets, events beside IMU and triggers
+    theirs, info = _aedat_decoder_events(path)
+    events = read_recording(path)
+    assert len(events) == 111_954
+    _assert_same(events, theirs["t"], theirs["x"], theirs["y"], theirs["on"])
     assert recording_sensor_size(path) == (info["height"], info["width"]) == (240, 320)
+
+
+@pytest.mark.parametrize("compression", [None, ("lz4", 1), ("lz4", 9), ("zstd", 3)])
+def test_aedat4_in_each_compression_matches_the_aedat_decoder(tmp_path, compression) -> None:
+    faery = pytest.importorskip("faery")
+    events = _events(20_000, 260, 346)
+    packet = np.zeros(len(events), faery.EVENTS_DTYPE)
+    packet["t"], packet["x"], packet["y"], packet["on"] = (
+        events["t"], events["x"], events["y"], events["p"] == 1,
+    )  # fmt: skip
+    path = tmp_path / "rec.aedat4"
+    faery.events_stream_from_array(packet, dimensions=(346, 260)).to_file(
+        path, compression=compression
+    )
+    theirs, _ = _aedat_decoder_events(path)
+    ours = read_recording(path)
+    _assert_same(ours, theirs["t"], theirs["x"], theirs["y"], theirs["on"])
+    np.testing.assert_array_equal(ours, events)
 
 
 def test_evt2_matches_its_published_layout(shared) -> None:
