@@ -69,6 +69,10 @@ BAD_FILES = {
         lambda p: _npz(p.with_suffix(".npz"), x=[200, 1], sensor=[128, 128]),
         r"x = 200 outside its sensor \(width 128",
     ),
+    "y outside a DVS128": (
+        lambda p: _npz(p.with_suffix(".npz"), y=[3, 128], sensor=[128, 128]),
+        r"y = 128 outside its sensor \(height 128: y in 0\.\.127\)",
+    ),
 }
 
 
