@@ -269,6 +269,19 @@ def test_no_import_runs_back_up_a_floor() -> None:
     assert upward == []
 
 
+# What edr-tables, which only reads records, must not load: the training floors, the emulator and
+# torchrl, and the representations with their numba kernels.
+NOT_FOR_TABLES = ("edr.tasks", "edr.rl", "edr.representations", "torchrl", "ale_py", "numba")
+
+
+def test_edr_tables_imports_no_training_code() -> None:
+    code = "import sys, edr.tables; print(*sys.modules)"
+    loaded = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert [m for m in loaded if any(f"{m}.".startswith(f"{n}.") for n in NOT_FOR_TABLES)] == []
+
+
 def test_the_readme_layout_names_every_module_and_top_level_folder() -> None:
     root = Path(__file__).resolve().parents[1]
     readme = (root / "README.md").read_text()
