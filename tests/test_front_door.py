@@ -159,7 +159,10 @@ def _check_line(*argv: str) -> None:
         (["task.epochs=abc"], "no such key epochs in task=representation_demo (the default"),
         (["task=kth", "task.epochs=abc"], "task.epochs='abc': expected an integer"),
         (["+task.new_key=1"], "takes no argument new_key"),
-        (["+representation.parameterizaton=log"], "+representation.parameterization=log?"),
+        (
+            ["+representation.parameterizaton=log"],
+            "did you mean representation.parameterization=log?",
+        ),
         (["-m", "task=kth", "representation=edr,fdrr"], "representation=fdrr: no such option"),
     ],
 )
@@ -172,8 +175,9 @@ def test_a_typo_is_refused_in_one_line_naming_the_nearest_key(argv, said) -> Non
 @pytest.mark.parametrize(
     "argv",
     [
-        ["+representation.parameterization=bounded"],  # conf/representation/edr.yaml documents
-        ["+representation.bptt_window=10"],  # these two additions
+        ["representation.parameterization=bounded"],  # docs/library.md's learnable settings
+        ["representation.bptt_window=10"],
+        ["+backbone.head.kernel=5"],  # an argument the config leaves out, added
         ["task=kth", "++task.epochs=3"],
         ["-m", "experiment=table4_kth", "debug=tiny"],
         ["task=atari", "game=breakout", "task.env.inputs=fdr", "debug=tiny"],
