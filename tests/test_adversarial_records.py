@@ -216,7 +216,7 @@ def _atari_record(tmp_path: Path, env: dict[str, Any]) -> Path:
 def test_no_module_a_record_names_is_imported_without_trust(form, tmp_path) -> None:
     run_dir = _atari_record(tmp_path, ENV_FORMS[form])
     result = subprocess.run(
-        [sys.executable, "-m", "edr.tasks.atari", str(run_dir)], cwd=tmp_path,
+        [sys.executable, "-m", "edr.evaluate", str(run_dir)], cwd=tmp_path,
         capture_output=True, text=True, timeout=120,
         env={**os.environ, "PYTHONPATH": SRC},
     )  # fmt: skip

@@ -123,3 +123,18 @@ def test_a_results_folder_that_cannot_be_written_is_one_line(monkeypatch, capsys
     assert stopped.value.code == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "Permission denied" in line and "run.log" in line and "EDR_RESULTS" in line
+
+
+def test_edr_eval_says_what_it_does_and_refuses_a_folder_without_a_run(tmp_path, capsys) -> None:
+    """edr-eval: --help names its options; a folder with no run.json is one line, exit 2."""
+    from edr import evaluate
+
+    with pytest.raises(SystemExit) as ended:
+        evaluate.main(["--help"])
+    assert ended.value.code == 0
+    assert "--plays" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as ended:
+        evaluate.main([str(tmp_path)])
+    assert ended.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("edr-eval: ") and str(tmp_path) in err and len(err.splitlines()) == 1

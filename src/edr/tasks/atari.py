@@ -13,7 +13,6 @@ each is 4 emulator frames.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections import deque
@@ -32,7 +31,6 @@ from edr.atomic import write_json_atomic
 from edr.checkpoints import (
     CHECKPOINT,
     DATA_FINGERPRINT,
-    UnreadableCheckpoint,
     check_same_data,
     load_checkpoint,
     restore,
@@ -454,24 +452,3 @@ def evaluate_checkpoint(
     metrics = {"train/env_steps": state["env_steps"], **_score_metrics(scores)}
     write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
     return metrics
-
-
-if __name__ == "__main__":
-    import argparse
-
-    parser = argparse.ArgumentParser(
-        prog="python -m edr.tasks.atari", description=evaluate_checkpoint.__doc__.split("\n")[0]
-    )
-    parser.add_argument("run_dir", type=Path, help="the run's folder (run.json, checkpoint.pt)")
-    parser.add_argument("--plays", type=int, default=None, help="games (default: the run's)")
-    parser.add_argument(
-        "--trust-env-module",
-        action="store_true",
-        help="import the module the record names (task.env.env_module): it runs its code",
-    )
-    args = parser.parse_args()
-    try:
-        metrics = evaluate_checkpoint(args.run_dir, args.plays, args.trust_env_module)
-    except (UntrustedRecord, UnreadableRecord, UnreadableCheckpoint, FileNotFoundError) as error:
-        parser.exit(2, f"{parser.prog}: {error}\n")
-    print(json.dumps(metrics, indent=1))
