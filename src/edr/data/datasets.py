@@ -114,6 +114,13 @@ def _checked_video(path: Path, where: str) -> Path:
         raise DataLayoutError(f"{where}: {error}") from None
 
 
+def _visible(folder: Path) -> list[Path]:
+    """What ``folder`` holds, sorted, but hidden names (``.DS_Store``, an editor's swap file):
+    a class folder's every other entry is one of its videos, or refused by name, never skipped
+    unsaid (a video converted to .mp4 would leave its class silently smaller)."""
+    return sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+
+
 def _class_index(class_file: Path) -> dict[str, int]:
     """classInd.txt's ``1 ApplyEyeMakeup`` lines -> {name: 0-based label}: every index from 1
     to the number of classes once, every name once (else one line naming file and line)."""
@@ -198,15 +205,20 @@ def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
     folders = sorted(d for d in root.iterdir() if d.is_dir() and any(d.glob("*.avi")))
     if not folders:
         raise _missing(root, "class folders with .avi files", "<root>/<ClassName>/*.avi")
-    videos = [
-        Video(
-            _checked_video(path, str(folder)),
-            label,
-            group.group(1) if (group := UCF_GROUP.search(path.name)) else path.stem,
-        )
-        for label, folder in enumerate(folders)
-        for path in sorted(folder.glob("*.avi"))
-    ]
+    videos = []
+    for label, folder in enumerate(folders):
+        for path in _visible(folder):
+            if path.suffix != ".avi":
+                raise DataLayoutError(
+                    f"{path}: not a video of the layout <root>/<ClassName>/*.avi: rename, "
+                    "convert or remove it"
+                )
+            group = UCF_GROUP.search(path.name)
+            videos.append(
+                Video(
+                    _checked_video(path, str(folder)), label, group.group(1) if group else path.stem
+                )
+            )
     return VideoSet(tuple(videos), tuple(d.name for d in folders), time_split=time_split)
 
 
@@ -229,8 +241,8 @@ def kth(
         raise _missing(root, f"action folders {absent}", KTH_LAYOUT)
     videos = []
     for label, action in enumerate(KTH_ACTIONS):
-        found = sorted((root / action).glob("*.avi"))
-        if not found:
+        found = _visible(root / action)
+        if not any(p.suffix == ".avi" for p in found):
             raise DataLayoutError(
                 f"{root / action} holds no .avi video: every action needs videos ({KTH_LAYOUT})"
             )
@@ -238,7 +250,8 @@ def kth(
             match = KTH_NAME.search(path.name)
             if match is None or match.group(2) != action:
                 raise DataLayoutError(
-                    f"{path}: not a KTH file name ({KTH_LAYOUT}): rename or remove it"
+                    f"{path}: not a KTH video file name ({KTH_LAYOUT}): rename, convert or "
+                    "remove it"
                 )
             videos.append(Video(_checked_video(path, str(root / action)), label, match.group(1)))
     if protocol == "time":

@@ -13,9 +13,17 @@ import torch
 from edr.atomic import publish_dir
 from edr.data.fingerprint import files_fingerprint
 from edr.data.video import read_video, write_video
-from edr.validate import PositiveInt, Range
+from edr.validate import PositiveInt, Range, check_memory
 
 FrameSide = Annotated[int, Range(16)]  # a frame's side: the generated scene draws at least 16
+
+
+def check_video_memory(writer: str, frames: int, height: int, width: int) -> None:
+    """Refuse a generated video that cannot fit in memory (each is made whole, then written)."""
+    check_memory(
+        f"{writer}: frames={frames}, height={height}, width={width}",
+        f"a generated video of {frames} frames at {width}x{height}", frames * height * width,
+    )  # fmt: skip
 
 
 def _texture(rng: np.random.Generator, height: int, width: int, blur: float) -> np.ndarray:
@@ -63,6 +71,11 @@ def video_or_scene(
 ) -> tuple[torch.Tensor, dict[str, Any]]:
     """(clip (T, 3, H, W) uint8, its ``data/*`` entries for the run record): ``video`` read and
     resized to ``width`` x ``height``, or, without one, the generated scene drawn from ``seed``."""
+    check_memory(
+        f"task.frames={frames}, task.height={height}, task.width={width}",
+        f"{'a frame' if video else f'a clip of {frames} frames'} at {width}x{height} (RGB, uint8)",
+        (1 if video else frames) * 3 * height * width,  # a video may hold fewer than ``frames``
+    )  # fmt: skip
     if video:
         clip = read_video(video, max_frames=frames, size=(width, height))
         label, fingerprint = str(video), files_fingerprint([Path(video)], Path(video).parent)
@@ -166,6 +179,7 @@ def write_synthetic_kth(
 
     Gray 160x120 video at 25 fps, like KTH's; an existing ``root`` is left as it is.
     """
+    check_video_memory("write_synthetic_kth", frames, height, width)
 
     def write(tmp: Path) -> None:
         rng = np.random.default_rng(seed)
@@ -195,6 +209,7 @@ def write_synthetic_ucf101(
     ``classInd.txt``, ``trainlist0{1,2,3}.txt`` and ``testlist0{1,2,3}.txt``: split k tests on
     groups 7(k-1)+1 .. 7k, as the official lists do. Class names start with "Synth".
     """
+    check_video_memory("write_synthetic_ucf101", frames, height, width)
 
     def write(tmp: Path) -> None:
         rng = np.random.default_rng(seed)

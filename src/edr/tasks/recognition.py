@@ -48,13 +48,14 @@ from edr.validate import (
     ConfigError,
     DataRoot,
     Device,
-    FilePath,
     Fraction,
     LoggerName,
     NonEmpty,
     NonNegativeInt,
+    OutputDir,
     PositiveFloat,
     PositiveInt,
+    check_memory,
 )
 
 log = logging.getLogger(__name__)
@@ -117,7 +118,7 @@ def fit_recognition(
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
     data_root: DataRoot | None = None,
-    cache_dir: FilePath = "results/cache",
+    cache_dir: OutputDir = "results/cache",
     resize: tuple[PositiveInt, PositiveInt] = (89, 67),
     gray: bool = False,
     max_frames: PositiveInt | None = None,
@@ -150,6 +151,14 @@ def fit_recognition(
             f"(task.resize={list(resize)}): a crop is cut from a frame, then resized"
         )
     check_enough_frames(frames, {"the representation": representation})
+    check_decoded_memory(resize, frames, 1 if gray else 3)
+    in_frames = frames if representation.precompute else representation.out_frames(frames)
+    check_memory(
+        f"task.batch_size={batch_size}, task.frames={frames}, task.crop={crop}",
+        f"a batch of the backbone's input ({batch_size} clips of {in_frames} frames at "
+        f"{crop}x{crop}, float32)",
+        batch_size * in_frames * representation.out_channels(1 if gray else 3) * crop * crop * 4,
+    )
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     dev = torch.device(device)
@@ -321,6 +330,19 @@ def fit_recognition(
     if diverged:  # what a network of NaNs predicts is no accuracy
         metrics["eval/accuracy"] = float("nan")
     return Fitted(model, metrics)
+
+
+def check_decoded_memory(
+    resize: Sequence[int], frames: int, channels: int, where: str = "task"
+) -> None:
+    """Refuse a frame size whose clip cannot fit in memory: a clip's ``frames`` decoded frames
+    at ``resize``, held whole (or padded to ``frames`` from a shorter video); ``where``: the
+    settings' section in the config."""
+    width, height = resize
+    check_memory(
+        f"{where}.resize={list(resize)}, {where}.frames={frames}",
+        f"a clip's {frames} decoded frames at {width}x{height}", frames * channels * width * height,
+    )  # fmt: skip
 
 
 def data_labels(
