@@ -135,6 +135,23 @@ def test_a_file_linked_outside_its_run_folder_is_not_read(name, tmp_path) -> Non
     assert not any(b"leaked" in p.read_bytes() for p in copied)
 
 
+def test_a_record_or_bench_record_linked_from_outside_is_not_read(tmp_path) -> None:
+    secret = tmp_path / "secret.json"
+    secret.write_text(json.dumps(_record(seed=7, metrics={"eval/accuracy": 0.987654,
+                                                         "eval/chance": 1 / 6})))  # fmt: skip
+    runs = tmp_path / "runs"
+    _write(runs / "good", _record())
+    (runs / "linked").mkdir()
+    (runs / "linked" / "run.json").symlink_to(secret)
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    (bench / "speed_zz_linked.json").symlink_to(secret)
+    printed = _render(runs, tmp_path / "out", "--bench", str(bench))
+    assert "98.8" not in (tmp_path / "out" / "table4_kth.md").read_text()
+    assert "linked/run.json" in printed and "a symbolic link" in printed
+    assert "speed_zz_linked.json" in printed and "links outside" in printed
+
+
 # ---- case 2: run folders reached through a link are said, not silently skipped -----------------
 def test_a_linked_run_folder_is_listed_not_silently_skipped(tmp_path) -> None:
     elsewhere = _write(tmp_path / "elsewhere" / "one", _record(seed=1)).parent

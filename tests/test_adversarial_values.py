@@ -123,7 +123,8 @@ REFUSED = {
     ),
     "a generated video past memory": (
         (*TINY_KTH, "+task.synthetic.height=1000000000"),
-        "write_synthetic_kth: frames=16, height=1000000000, width=160: a generated video",
+        "task.synthetic.frames=16, task.synthetic.height=1000000000, task.synthetic.width=160: "
+        "a generated video of 16 frames",
     ),
     "a demo clip past memory": (
         ("task=representation_demo", "debug=tiny", "task.height=10000000", "task.width=10000000"),

@@ -20,7 +20,9 @@ UCF-101 then needs no ``ucfTrainTestlist/``, only ``<root>/<ClassName>/*.avi``.
 
 from __future__ import annotations
 
+import inspect
 import logging
+import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -33,7 +35,7 @@ from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
 from edr.data.video import UnreadableVideo, check_video_file
 from edr.identity import digest
-from edr.validate import ConfigError, Fraction, OpenFraction
+from edr.validate import ConfigError, Fraction, OpenFraction, check_memory
 
 UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
@@ -280,13 +282,24 @@ def kth(
 
 
 def resolve_root(
-    data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path
+    data_root: str | None,
+    synthetic: Callable[..., Path],
+    cache_dir: str | Path,
+    where: str = "task",
 ) -> Path:
     """``data_root`` when given; else the data set ``synthetic`` (a partial of one of the writers
     of ``edr.data.synthetic`` or ``edr.data.from_videos``) writes once under ``cache_dir``, named
-    by its settings."""
+    by its settings, once a video of its size is known to fit in memory (each is made whole;
+    ``where``: the config's section that holds ``synthetic``)."""
     if data_root:
         return Path(data_root)
+    size = {k: p.default for k, p in inspect.signature(synthetic).parameters.items()
+            if k in ("frames", "height", "width")}  # fmt: skip
+    check_memory(
+        ", ".join(f"{where}.synthetic.{k}={v}" for k, v in size.items()),
+        f"a generated video of {size['frames']} frames at {size['width']}x{size['height']}",
+        math.prod(size.values()),
+    )
     settings = {"fn": synthetic.func.__name__, **synthetic.keywords}
     root = Path(cache_dir).resolve() / f"{synthetic.func.__name__}_{digest(settings, 10)}"
     if not root.exists():

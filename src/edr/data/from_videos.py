@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from edr.atomic import publish_dir
-from edr.data.synthetic import check_video_memory, ucf101_name, write_ucf101_lists
+from edr.data.synthetic import ucf101_name, write_ucf101_lists
 from edr.data.video import read_video, write_video
 from edr.validate import PositiveInt
 
@@ -56,7 +56,6 @@ def write_speed_ucf101(
     group g crops source ``videos[(g - 1) % len(videos)]``; each clip starts at a random frame.
     Every source must hold ``frames`` x 4 frames (the slowest class's span). An existing
     ``root`` is kept."""
-    check_video_memory("write_speed_ucf101", frames, height, width)
     videos = sample_videos() if videos is None else videos
     if not videos:
         raise ValueError("videos: expected at least one real video file, got none")

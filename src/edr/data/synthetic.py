@@ -18,14 +18,6 @@ from edr.validate import PositiveInt, Range, check_memory
 FrameSide = Annotated[int, Range(16)]  # a frame's side: the generated scene draws at least 16
 
 
-def check_video_memory(writer: str, frames: int, height: int, width: int) -> None:
-    """Refuse a generated video that cannot fit in memory (each is made whole, then written)."""
-    check_memory(
-        f"{writer}: frames={frames}, height={height}, width={width}",
-        f"a generated video of {frames} frames at {width}x{height}", frames * height * width,
-    )  # fmt: skip
-
-
 def _texture(rng: np.random.Generator, height: int, width: int, blur: float) -> np.ndarray:
     noise = cv2.GaussianBlur(rng.random((height, width)).astype(np.float32), (0, 0), blur)
     return (noise - noise.min()) / max(float(noise.max() - noise.min()), 1e-6)  # 0..1
@@ -179,7 +171,6 @@ def write_synthetic_kth(
 
     Gray 160x120 video at 25 fps, like KTH's; an existing ``root`` is left as it is.
     """
-    check_video_memory("write_synthetic_kth", frames, height, width)
 
     def write(tmp: Path) -> None:
         rng = np.random.default_rng(seed)
@@ -209,7 +200,6 @@ def write_synthetic_ucf101(
     ``classInd.txt``, ``trainlist0{1,2,3}.txt`` and ``testlist0{1,2,3}.txt``: split k tests on
     groups 7(k-1)+1 .. 7k, as the official lists do. Class names start with "Synth".
     """
-    check_video_memory("write_synthetic_ucf101", frames, height, width)
 
     def write(tmp: Path) -> None:
         rng = np.random.default_rng(seed)

@@ -141,7 +141,7 @@ def dvs_transfer(
     videos: Callable[..., VideoSet] = kth["videos"]
     frames, crop, cache_dir = kth["frames"], kth["crop"], kth["cache_dir"]
     check_decoded_memory(kth["resize"], frames, 1, "task.pretrain")  # the simulator's, gray
-    root = resolve_root(kth["data_root"], kth["synthetic"], cache_dir)
+    root = resolve_root(kth["data_root"], kth["synthetic"], cache_dir, "task.pretrain")
     classes = videos(root, train=True).classes
     clips, labels = [], []
     if dvs_root:
