@@ -195,12 +195,24 @@ def _threads_problem(threads: Any) -> str | None:
 Threads = Annotated[int, Range(1), Check(_threads_problem)]
 
 
+# Where Linux states a container's memory limit (cgroup v2, then v1).
+CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes")
+
+
 def memory_bytes() -> int:
-    """This machine's physical memory, in bytes."""
+    """The memory this process may use, in bytes: the machine's, or its container's limit."""
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (AttributeError, OSError, ValueError):  # not POSIX: nothing to compare against
-        return 2**63
+        total = 2**63
+    for limit in CGROUP_LIMITS:
+        try:
+            text = Path(limit).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit():  # "max": no limit
+            total = min(total, int(text))
+    return total
 
 
 def check_memory(settings: str, what: str, nbytes: float) -> None:
