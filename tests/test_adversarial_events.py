@@ -3,6 +3,8 @@ naming the file and what is wrong, before any training, and nothing is binned be
 
 from __future__ import annotations
 
+import re
+import sys
 import types
 from pathlib import Path
 
@@ -66,6 +68,10 @@ BAD_FILES = {
     "events outside a DVS128": (
         lambda p: _npz(p.with_suffix(".npz"), x=[200, 1], sensor=[128, 128]),
         r"x = 200 outside its sensor \(width 128",
+    ),
+    "y outside a DVS128": (
+        lambda p: _npz(p.with_suffix(".npz"), y=[3, 128], sensor=[128, 128]),
+        r"y = 128 outside its sensor \(height 128: y in 0\.\.127\)",
     ),
 }
 
@@ -153,31 +159,90 @@ def test_a_folder_of_only_aedat4_recordings_is_read(tmp_path) -> None:
         )  # fmt: skip
 
 
-def test_without_the_events_extra_one_line_names_it(tmp_path, monkeypatch) -> None:
-    monkeypatch.setitem(__import__("sys").modules, "faery", None)  # import faery: ImportError
-    path = tmp_path / "rec.aedat4"
-    path.write_bytes(b"#!AER-DAT4.0\r\n" + bytes(64))
+def test_without_faery_an_evt2_file_names_the_extra(tmp_path, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "faery", None)  # import faery: ImportError
+    path = tmp_path / "rec.raw"
+    path.write_bytes(b"% evt 2.0\n" + bytes(64))
     with pytest.raises(
-        RecordingError, match=r"rec\.aedat4: AEDAT 4: .*pip install 'edr\[events\]'"
+        RecordingError,
+        match=r"rec\.raw: EVT 2\.0: reading it needs faery: pip install 'edr\[events\]'",
     ):
         read_recording(path)
 
 
-@pytest.mark.parametrize(("name", "keep"), [("sample.aedat4", 2000), ("evt2_sample.raw", 300_001),
+@pytest.mark.parametrize(("compression", "hidden"), [("lz4", "lz4.frame"), ("zstd", "zstandard")])
+def test_without_its_decompressor_an_aedat4_file_names_the_extra(
+    tmp_path, monkeypatch, compression, hidden
+) -> None:
+    faery = pytest.importorskip("faery")
+    packet = np.zeros(3, faery.EVENTS_DTYPE)
+    packet["t"] = [1, 5, 9]
+    path = tmp_path / "rec.aedat4"
+    faery.events_stream_from_array(packet, dimensions=(8, 8)).to_file(
+        path, compression=(compression, 1)
+    )
+    monkeypatch.setitem(sys.modules, hidden, None)
+    with pytest.raises(
+        RecordingError,
+        match=rf"rec\.aedat4: AEDAT 4: its packets are {compression}-compressed; reading it needs "
+        rf"{hidden.split('.')[0]}: pip install 'edr\[events\]'",
+    ):
+        read_recording(path)
+
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "events"
+
+
+def _shared(name: str) -> bytes:
+    if not (SHARED / name).is_file():
+        pytest.skip(
+            f"real event recordings not found at {SHARED} (the repository's ../shared/events)"
+        )
+    return (SHARED / name).read_bytes()
+
+
+@pytest.mark.parametrize(("name", "keep"), [("sample.aedat4", 2000), ("sample.aedat4", 300_001),
+                                            ("evt2_sample.raw", 300_001),
                                             ("evt3_sample.raw", 300_001)])  # fmt: skip
 def test_a_truncated_real_recording_is_one_line(tmp_path, name, keep) -> None:
-    shared = Path(__file__).resolve().parents[1].parent / "shared" / "events"
-    if not (shared / name).is_file():
-        pytest.skip(
-            f"real event recordings not found at {shared} (the repository's ../shared/events)"
-        )
-    if name.endswith(".aedat4"):
-        pytest.importorskip("faery")
+    data = _shared(name)
+    pytest.importorskip("lz4" if name.endswith(".aedat4") else "faery")
     path = tmp_path / name
-    path.write_bytes((shared / name).read_bytes()[:keep])
+    path.write_bytes(data[:keep])
     with pytest.raises(RecordingError, match=r"(truncated|cannot be decoded)") as caught:
         read_recording(path)
     assert str(caught.value).startswith(f"{path}: ") and "\n" not in str(caught.value)
+
+
+LZ4_FRAME_MAGIC = b"\x04\x22\x4d\x18"
+BAD_AEDAT4 = {  # the shared recording, altered: (how, what its one line says)
+    "its packets' LZ4 frames garbled": (
+        lambda data: data.replace(LZ4_FRAME_MAGIC, bytes(4)),
+        r"the packet at byte \d+ cannot be decoded \(.*frameType_unknown",
+    ),
+    "no events stream": (
+        lambda data: data.replace(b">EVTS</attr>", b">FRME</attr>"),
+        r"no events stream \('EVTS'\)",
+    ),
+    "not AEDAT 4 after its magic": (
+        lambda data: data[:14] + bytes(64),
+        "its header cannot be decoded",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", BAD_AEDAT4)
+def test_a_corrupt_aedat4_file_is_one_line(tmp_path, case) -> None:
+    alter, problem = BAD_AEDAT4[case]
+    data = _shared("sample.aedat4")
+    pytest.importorskip("lz4")
+    path = tmp_path / "rec.aedat4"
+    path.write_bytes(alter(data))
+    with pytest.raises(
+        RecordingError, match=rf"^{re.escape(str(path))}: AEDAT 4: {problem}"
+    ) as caught:
+        read_recording(path)
+    assert "\n" not in str(caught.value)
 
 
 @pytest.mark.slow

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+import edr.rl.learner as learner
 import edr.tasks.atari as atari
 from edr.models.paac import PAACNetwork
 from edr.rl.loss import n_step_returns
@@ -103,7 +104,7 @@ def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -
 @pytest.mark.slow
 def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> None:
     overrides = ("task=atari", "debug=tiny", "representation.color=gray")
-    real_returns, calls = atari.n_step_returns, {"n": 0}
+    real_returns, calls = learner.n_step_returns, {"n": 0}
 
     def dies_in_update_65(*args, **kwargs):
         calls["n"] += 1
@@ -111,7 +112,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
             raise KeyboardInterrupt("killed")
         return real_returns(*args, **kwargs)
 
-    monkeypatch.setattr(atari, "n_step_returns", dies_in_update_65)
+    monkeypatch.setattr(learner, "n_step_returns", dies_in_update_65)
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
     assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["env_steps"] == 1280
@@ -123,7 +124,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     (bare / "run.json").write_text((tmp_path / "run.json").read_text())
     with pytest.raises(FileNotFoundError, match=r"has no checkpoint\.pt: a run writes one"):
         evaluate_checkpoint(bare)
-    monkeypatch.setattr(atari, "n_step_returns", real_returns)
+    monkeypatch.setattr(learner, "n_step_returns", real_returns)
     metrics = run(compose_config(*overrides, f"out_dir={tmp_path}"))
 
     record = json.loads((tmp_path / "run.json").read_text())

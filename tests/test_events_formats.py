@@ -6,6 +6,7 @@ here in their layouts."""
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 
 import numpy as np
@@ -51,8 +52,12 @@ def _body(path, header_prefix: bytes) -> bytes:
     return raw[at:]
 
 
-def test_evt3_matches_the_evt3_decoder(shared) -> None:
+@pytest.mark.parametrize("chunk", [1 << 20, 10_007])  # one chunk; many, the decoder state carried
+def test_evt3_matches_the_evt3_decoder(shared, monkeypatch, chunk) -> None:
+    from edr.data.events import prophesee
+
     evt3 = pytest.importorskip("evt3")
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", chunk)  # words a chunk
     path = shared / "evt3_sample.raw"
     theirs = evt3.decode_file(str(path))
     events = read_recording(path)
@@ -61,17 +66,45 @@ def test_evt3_matches_the_evt3_decoder(shared) -> None:
     assert recording_sensor_size(path) == (theirs.sensor_height, theirs.sensor_width) == (720, 1280)
 
 
-def test_aedat4_matches_the_aedat_decoder(shared) -> None:
+def _aedat_decoder_events(path) -> tuple[np.ndarray, dict]:
+    """The first events stream of an AEDAT 4 file as the ``aedat`` package decodes it: its
+    events (N,) (t, x, y, on) and its stream's description."""
     aedat = pytest.importorskip("aedat")
-    pytest.importorskip("faery")
-    path = shared / "sample.aedat4"
     decoder = aedat.Decoder(str(path))
-    stream = next(i for i, s in decoder.id_to_stream().items() if s["type"] == "events")
+    stream = min(i for i, s in decoder.id_to_stream().items() if s["type"] == "events")
     packets = [p["events"] for p in decoder if p["stream_id"] == stream and "events" in p]
-    theirs = np.concatenate(packets)
-    _assert_same(read_recording(path), theirs["t"], theirs["x"], theirs["y"], theirs["on"])
-    info = decoder.id_to_stream()[stream]
+    return np.concatenate(packets), decoder.id_to_stream()[stream]
+
+
+@pytest.mark.parametrize("chunk", [1 << 20, 5_000])  # one chunk; packets joined into many
+def test_aedat4_matches_the_aedat_decoder(shared, monkeypatch, chunk) -> None:
+    from edr.data.events import aedat4
+
+    monkeypatch.setattr(aedat4, "CHUNK_EVENTS", chunk)
+    path = shared / "sample.aedat4"  # LZ4-compressed packets, events beside IMU and triggers
+    theirs, info = _aedat_decoder_events(path)
+    events = read_recording(path)
+    assert len(events) == 111_954
+    _assert_same(events, theirs["t"], theirs["x"], theirs["y"], theirs["on"])
     assert recording_sensor_size(path) == (info["height"], info["width"]) == (240, 320)
+
+
+@pytest.mark.parametrize("compression", [None, ("lz4", 1), ("lz4", 9), ("zstd", 3)])
+def test_aedat4_in_each_compression_matches_the_aedat_decoder(tmp_path, compression) -> None:
+    faery = pytest.importorskip("faery")
+    events = _events(20_000, 260, 346)
+    packet = np.zeros(len(events), faery.EVENTS_DTYPE)
+    packet["t"], packet["x"], packet["y"], packet["on"] = (
+        events["t"], events["x"], events["y"], events["p"] == 1,
+    )  # fmt: skip
+    path = tmp_path / "rec.aedat4"
+    faery.events_stream_from_array(packet, dimensions=(346, 260)).to_file(
+        path, compression=compression
+    )
+    theirs, _ = _aedat_decoder_events(path)
+    ours = read_recording(path)
+    _assert_same(ours, theirs["t"], theirs["x"], theirs["y"], theirs["on"])
+    np.testing.assert_array_equal(ours, events)
 
 
 def test_evt2_matches_its_published_layout(shared) -> None:
@@ -296,3 +329,84 @@ def test_a_clip_is_binned_from_its_recordings_first_event() -> None:
     start = int(events["t"][0])
     clip = _event_clip(events, 128, 128, 40_000.0, frames=4, crop=128, start_us=start)
     assert float(clip.sum()) == (events["t"] < start + 160_000).sum() > 0
+
+
+def _evt2(path: Path, events: np.ndarray, sensor: tuple[int, int]) -> None:
+    """EVT 2.0 as Prophesee publishes it: 32-bit words, type in the top 4 bits (0 CD OFF, 1 CD
+    ON, 8 EVT_TIME_HIGH: t >> 6), a CD word holding t's 6 low bits, x (11 bits) and y (11)."""
+    t, x, y, p = _columns(events)
+    high = t >> 6
+    new = np.r_[True, high[1:] != high[:-1]]  # a TIME_HIGH word before each new high
+    words = np.zeros(len(t) + new.sum(), "<u4")
+    at = np.arange(len(t)) + np.cumsum(new)
+    words[at] = (p << 28) | ((t & 63) << 22) | (x << 11) | y
+    words[at[new] - 1] = (8 << 28) | high[new]
+    header = f"% evt 2.0\n% geometry {sensor[1]}x{sensor[0]}\n% end\n".encode()
+    path.write_bytes(header + words.tobytes())
+
+
+def _dat(path: Path, events: np.ndarray, sensor: tuple[int, int]) -> None:
+    """DAT version 2: '%' lines, event type and size, then (uint32 t, uint32 x | y << 14 |
+    p << 28) pairs."""
+    t, x, y, p = _columns(events)
+    words = np.stack([t, x | (y << 14) | (p << 28)], 1).astype("<u4")  # (N, 2)
+    header = f"% Version 2\n% Height {sensor[0]}\n% Width {sensor[1]}\n".encode()
+    path.write_bytes(header + bytes([12, 8]) + words.tobytes())
+
+
+def _nmnist(path: Path, events: np.ndarray, sensor: tuple[int, int]) -> None:
+    """N-MNIST: 5 bytes an event, x, y, then p in bit 7 and a 23-bit t, big-endian."""
+    t, x, y, p = _columns(events)
+    rows = np.stack([x, y, (p << 7) | (t >> 16), (t >> 8) & 255, t & 255], 1)  # (N, 5)
+    path.write_bytes(rows.astype(np.uint8).tobytes())
+
+
+def _hdf5(layout: str):
+    def write(path: Path, events: np.ndarray, sensor: tuple[int, int]) -> None:
+        h5py = pytest.importorskip("h5py")
+        with h5py.File(path, "w") as f:
+            if layout == "DSEC":
+                for k in "xytp":
+                    f[f"events/{k}"] = events[k]
+            else:  # MVSEC: rows (x, y, t seconds, p -1/1)
+                f["davis/left/events"] = np.stack(
+                    [events["x"], events["y"], events["t"] * 1e-6, 2.0 * events["p"] - 1], 1
+                )
+
+    return write
+
+
+# A row of docs/events.md's table, by its first words -> (the format detect_format finds there,
+# a writer of a small file in it, the file's sensor)
+DOCUMENTED_FORMATS = {
+    "AEDAT 2.0": ("AEDAT 2.0", write_recording, (128, 128)),
+    "AEDAT 3.1": ("AEDAT 3.1", lambda path, events, sensor: _aedat31(path, events), (128, 128)),
+    "AEDAT 4": ("AEDAT 4", write_recording, (260, 346)),
+    "EVT 2.0": ("EVT 2.0", _evt2, (120, 160)),
+    "EVT 3.0": ("EVT 3.0", write_recording, (720, 1280)),
+    "DAT": ("DAT", _dat, (120, 160)),
+    "N-MNIST": ("N-MNIST", _nmnist, (34, 34)),
+    "HDF5, DSEC": ("HDF5", _hdf5("DSEC"), (480, 640)),
+    "HDF5, MVSEC": ("HDF5", _hdf5("MVSEC"), (260, 346)),
+    "the suite's own": (".npz", write_recording, (34, 34)),
+}
+
+
+def test_every_format_docs_events_md_lists_reads_in_its_one_line(tmp_path, monkeypatch) -> None:
+    pytest.importorskip("faery")  # writes AEDAT 4 and EVT 3.0, reads EVT 2.0
+    document = Path(__file__).resolve().parents[1] / "docs" / "events.md"
+    rows = re.findall(
+        r'^\| ([^|]+?) \|.*\| `(read_recording\("([^"]+)"\))` \|$', document.read_text(), re.M
+    )  # (format, its one-line read, the file it reads)
+    keys = [next((k for k in DOCUMENTED_FORMATS if cell.startswith(k)), cell) for cell, *_ in rows]
+    assert sorted(keys) == sorted(DOCUMENTED_FORMATS)  # each documented format once, and only them
+    for key, (_, line, name) in zip(keys, rows, strict=True):
+        found, write, sensor = DOCUMENTED_FORMATS[key]
+        folder = tmp_path / re.sub(r"\W+", "_", key)
+        folder.mkdir()
+        monkeypatch.chdir(folder)
+        events = _events(300, *sensor)
+        write(Path(name), events, sensor)
+        read = eval(line, {"read_recording": read_recording})  # the documented line, as written
+        np.testing.assert_array_equal(read, events, err_msg=f"{key}: {line}")
+        assert detect_format(name).name == found

@@ -251,7 +251,8 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
     ]
 
 
-def main(argv: list[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
+    """edr-bench's options: the representations' speed (default), --atari or --events."""
     parser = argparse.ArgumentParser(prog="edr-bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--video", type=Path, help="a real video to time on (default: generated)")
     parser.add_argument("--frames", type=int, default=32, help="frames per call (clip length)")
@@ -298,60 +299,38 @@ def main(argv: list[str] | None = None) -> None:
         default=bench_dir(),
         help="where the record is written (default: results/runs/bench, untracked)",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _parser().parse_args(argv)
     repeats = 2 if args.quick else args.repeats
     if args.threads:
         torch.set_num_threads(args.threads)
-
     if args.atari:
         from edr.bench_atari import run_atari_bench  # ale-py, EnvPool and torchrl load only here
 
         run_atari_bench(args, repeats)
-        return
-    if args.events:
+    elif args.events:
         from edr.bench_events import run_events_bench
 
         run_events_bench(args, repeats)
-        return
-
-    # ---- the clip ----------------------------------------------------------------------------
-    size = (args.width, args.height)
-    if args.video:
-        clip = read_video(args.video, max_frames=args.frames, size=size)
-        source = f"{args.video.name} (decoded, resized to {args.width}x{args.height})"
     else:
-        clip = synthetic_scene(args.frames, args.height, args.width)
-        source = f"generated scene, {args.width}x{args.height}"
-    clip = clip.unsqueeze(0).contiguous()  # (1, T, 3, H, W) uint8
+        run_speed_bench(args, repeats)
+
+
+def run_speed_bench(args: argparse.Namespace, repeats: int) -> None:
+    """Every representation's frames/s on one clip (Table 2's speed column), printed beside the
+    paper's and written as a record."""
+    clip, source = _timed_clip(args)
     repeat = -(-args.long_frames // clip.shape[1])  # the clip played again until long enough
     long = clip.repeat(1, repeat, 1, 1, 1)[:, : args.long_frames].contiguous()
     atari = torch.randint(0, 256, (args.atari_batch, args.frames, 1, 84, 84), dtype=torch.uint8)
-
-    # ---- every row ---------------------------------------------------------------------------
+    todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari) + long_clip_jobs(long, "")
     # The process's allocator as users have it; the last rows again with glibc keeping freed
     # memory (edr.allocator.keep_freed_memory, process-wide, so only after everything else).
-    rows: list[BenchRow] = []
-    todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari) + long_clip_jobs(long, "")
     kept = long_clip_jobs(long, ", glibc keeping freed memory")[::2]
-    with torch.no_grad():
-        for job in (bar := tqdm([*todo, *kept], desc="edr-bench", unit="row")):
-            bar.set_postfix_str(job.name)
-            if job is kept[0] and not keep_freed_memory():
-                break  # not glibc: nothing to compare with
-            pair = [job] if job.in_turn_with is None else [job, job.in_turn_with]
-            with busy_neighbour() if job.busy_neighbour else nullcontext():
-                spent = time_in_turn([j.call for j in pair], repeats, warmup=args.warmup)
-            rows += [
-                BenchRow(j.name, j.implementation, j.frames, j.frame_size, s, j.frames / s)
-                for j, s in zip(pair, spent, strict=True)
-            ]
-
-    # ---- record and table --------------------------------------------------------------------
-    stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
-    machine = machine_info()
-    machine["numba_threads"] = numba.get_num_threads()
-    machine["numba_threading_layer"] = numba.threading_layer()
-    machine["allocator"] = "process default (glibc: freed memory kept only in the last rows)"
+    rows = _time_rows(todo, kept, repeats, args.warmup)
     record = {
         "kind": "speed",
         "clip": source,
@@ -359,13 +338,55 @@ def main(argv: list[str] | None = None) -> None:
         "repeats": repeats,
         "warmup": args.warmup,
         "git": git_revision(),
-        "measured_at": stamp,
-        "machine": machine,
+        "measured_at": time.strftime("%Y-%m-%d_%H-%M-%S"),
+        "machine": _speed_machine(),
         "rows": [asdict(r) for r in rows],
     }
-    path = write_json_atomic(args.out_dir / f"speed_{machine['hostname']}_{stamp}.json", record)
+    name = f"speed_{record['machine']['hostname']}_{record['measured_at']}.json"
+    path = write_json_atomic(args.out_dir / name, record)
     print(speed_table(record, load_published().get("speed", {}), str(path)))
     print(f"record: {path} (edr-tables renders paper/table2_speed.md from the latest record)")
+
+
+def _timed_clip(args: argparse.Namespace) -> tuple[torch.Tensor, str]:
+    """The clip every row times, (1, T, 3, H, W) uint8: ``--video`` decoded, or a generated
+    scene; and its description."""
+    size = (args.width, args.height)
+    if args.video:
+        clip = read_video(args.video, max_frames=args.frames, size=size)
+        source = f"{args.video.name} (decoded, resized to {args.width}x{args.height})"
+    else:
+        clip = synthetic_scene(args.frames, args.height, args.width)
+        source = f"generated scene, {args.width}x{args.height}"
+    return clip.unsqueeze(0).contiguous(), source
+
+
+def _time_rows(todo: list[Job], kept: list[Job], repeats: int, warmup: int) -> list[BenchRow]:
+    """Each job timed (with its pair in turn, beside a busy neighbour where it asks), then the
+    ``kept`` jobs once glibc keeps freed memory (skipped elsewhere)."""
+    rows: list[BenchRow] = []
+    with torch.no_grad():
+        for job in (bar := tqdm([*todo, *kept], desc="edr-bench", unit="row")):
+            bar.set_postfix_str(job.name)
+            if kept and job is kept[0] and not keep_freed_memory():
+                break  # not glibc: nothing to compare with
+            pair = [job] if job.in_turn_with is None else [job, job.in_turn_with]
+            with busy_neighbour() if job.busy_neighbour else nullcontext():
+                spent = time_in_turn([j.call for j in pair], repeats, warmup=warmup)
+            rows += [
+                BenchRow(j.name, j.implementation, j.frames, j.frame_size, s, j.frames / s)
+                for j, s in zip(pair, spent, strict=True)
+            ]
+    return rows
+
+
+def _speed_machine() -> dict[str, Any]:
+    """The machine, with numba's threads and the allocator the rows ran under."""
+    machine = machine_info()
+    machine["numba_threads"] = numba.get_num_threads()
+    machine["numba_threading_layer"] = numba.threading_layer()
+    machine["allocator"] = "process default (glibc: freed memory kept only in the last rows)"
+    return machine
 
 
 if __name__ == "__main__":

@@ -177,6 +177,15 @@ def _device_problem(name: Any) -> str | None:
 Device = Annotated[str, Check(_device_problem)]
 
 
+def torch_device(name: str) -> Any:
+    """The ``torch.device`` a :data:`Device` setting names (``auto``: the GPU if there is one)."""
+    import torch
+
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    return torch.device(name)
+
+
 def _cores() -> int:
     """The CPU cores this process may run on."""
     try:

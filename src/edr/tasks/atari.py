@@ -17,6 +17,7 @@ import json
 import logging
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -44,10 +45,9 @@ from edr.rebuild import UntrustedRecord, instantiate_from_record
 from edr.records import UnreadableRecord, read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
-from edr.rl.loss import n_step_returns, paac_loss
-from edr.rl.optim import make_optimizer
+from edr.rl.learner import Diverged, Learner
 from edr.rl.phases import PhaseClock
-from edr.rl.rollout import Actor, UniformPolicy, observations_held
+from edr.rl.rollout import Actor, Rollout, UniformPolicy, observations_held
 from edr.rl.settings import (
     INPUT_NAMES,
     EnvSettings,
@@ -57,7 +57,6 @@ from edr.rl.settings import (
     OptimSettings,
 )
 from edr.rl.transform import ObservationFrame
-from edr.tasks.divergence import divergence
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import open_logger
 from edr.validate import ConfigError, LoggerName, PositiveInt, check_memory
@@ -94,172 +93,188 @@ def train_paac(
     gymnasium env ``env.env_id``), then score ``evaluation.plays`` games. Returns the run's metrics.
 
     Every ``log_every`` updates a row of the history: losses, entropy, gradient norm, the
-    critic's mean value, the fraction of dead units per ReLU layer on the latest rollout, and
-    the mean score of the last 20 training episodes.
+    critic's mean value, the fraction of dead units per ReLU layer on the latest rollout, the
+    logits' spread, the time per phase and the mean score of the last 20 training episodes.
     """
     _check_env(env, network)
     backend = env.resolved_backend()
-    # ---- envs, network, optimizer ------------------------------------------------------------
     env_kwargs = _env_kwargs(env)
     net, arguments, observation = _network(env_kwargs, network, env.frame_stack)
     _check_memory(env, loss.rollout_steps, evaluation.plays, observation)
+    clock = PhaseClock()  # where each update's time goes, into the history
+    envs = _training_envs(env, loss, env_kwargs, backend, seed, clock)
+    learner = Learner(net, loss, optim, env.num_envs * loss.rollout_steps, clock)
+    fingerprint = (
+        rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
+    )
+    checkpoint = out_dir / CHECKPOINT
+    steps_done, history = 0, []
+    if resume:
+        state = load_checkpoint(checkpoint)
+        check_same_data(state, fingerprint, checkpoint)  # the same ROM (or env) it trained on
+        restore(state, learner.parts)  # episodes in progress restart
+        steps_done, history = state["env_steps"], state["history"]
+    progress = _TrainingLog(
+        env.name, env_steps, steps_done, history, open_logger(logger, out_dir, step=steps_done),
+        DeadUnits(net),
+    )  # fmt: skip
+
+    def save() -> None:
+        save_checkpoint(checkpoint, learner.parts, env_steps=progress.steps_done,
+                        history=progress.history, **{DATA_FINGERPRINT: fingerprint})  # fmt: skip
+
+    try:
+        actor = Actor(envs, net, env.frame_stack, clock)
+        diverged = _train(actor, learner, progress, save, env_steps, loss.rollout_steps,
+                          checkpoint_every, log_every)  # fmt: skip
+        if diverged:  # the checkpoint keeps the last network that was numbers; no games to score
+            log.warning("training diverged at %d env steps (%s): recorded as diverged",
+                        progress.steps_done, diverged["train/diverged_reason"])  # fmt: skip
+            progress.flush()
+    finally:
+        progress.close()
+        envs.close()
+    if not diverged:
+        save()
+    scores, evaluated = _evaluation(net, env_kwargs, env.frame_stack, backend, seed, evaluation,
+                                    played=not diverged)  # fmt: skip
+    save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
+    _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
+    return {
+        "data/source": "emulator" if env.env_id is None else "gymnasium",
+        "data/game": env.name,
+        "data/fingerprint": fingerprint,
+        **_training_metrics(history, progress.steps_done, learner.losses),
+        **evaluated,
+        **diverged,
+    }
+
+
+def _training_metrics(
+    history: list[dict[str, float]], steps_done: int, losses: dict[str, float]
+) -> dict[str, Any]:
+    """The record's ``train/`` and ``dead/`` part: env steps trained, speed, the first and last
+    training scores, the last update's losses and the last row's dead units."""
+    scored = [row for row in history if "train/score" in row]
+    return {
+        "train/env_steps": steps_done,
+        "train/fps": history[-1]["train/fps"] if history else float("nan"),
+        "train/score_first": scored[0]["train/score"] if scored else None,
+        "train/score_last": scored[-1]["train/score"] if scored else None,
+        **losses,
+        **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
+    }
+
+
+def _evaluation(
+    net: PAACNetwork, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend, seed: int,
+    evaluation: EvalSettings, played: bool,
+) -> tuple[list[float], dict[str, Any]]:  # fmt: skip
+    """The evaluation games' raw scores (none unless ``played``) and the record's ``eval/``
+    part; games cut short by ``max_steps`` get random play's mean on the same games beside."""
+    scores = _evaluate(net, env_kwargs, frame_stack, backend, seed, evaluation) if played else []
+    random_scores = (
+        _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, frame_stack, backend, seed,
+                  evaluation)
+        if evaluation.capped and scores else None
+    )  # fmt: skip
+    return scores, {**_score_metrics(scores), **_random_metrics(random_scores, evaluation)}
+
+
+def _training_envs(
+    env: EnvSettings, loss: LossSettings, env_kwargs: dict[str, Any], backend: Backend, seed: int,
+    clock: PhaseClock,
+) -> TransformedEnv:  # fmt: skip
+    """The training envs, seeded, their observation transform timed by ``clock``."""
     envs = _env(
         num_envs=env.num_envs, backend=backend, keep_inputs=False,
         frame_ring=observations_held(loss.rollout_steps, env.frame_stack), **env_kwargs,
     )  # fmt: skip
     envs.set_seed(seed)
-    clock = PhaseClock()  # where each update's time goes, into the history
     for transform in envs.transform:  # the observation's transform, where it runs in-process
         if isinstance(transform, ObservationFrame):
             transform.clock = clock
-    actor = Actor(envs, net, env.frame_stack, clock)
-    dead_units = DeadUnits(net)
-    opt = make_optimizer(
-        optim.name,
-        net.parameters(),
-        lr=optim.learning_rate,
-        rmsprop_decay=optim.rmsprop_decay,
-        rmsprop_eps=optim.rmsprop_eps,
-        adam_eps=optim.adam_eps,
-    )
-    batch = env.num_envs * loss.rollout_steps
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda update: max(0.0, 1.0 - update * batch / optim.lr_decay_env_steps)
-    )
-    steps_done, history = 0, []
-    checkpoint = out_dir / CHECKPOINT
-    parts = {"network": net, "optimizer": opt, "schedule": schedule}
-    fingerprint = (
-        rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
-    )
-    if resume:
-        state = load_checkpoint(checkpoint)
-        check_same_data(state, fingerprint, checkpoint)  # the same ROM (or env) it trained on
-        restore(state, parts)  # episodes in progress restart
-        steps_done, history = state["env_steps"], state["history"]
-    scalars = open_logger(logger, out_dir, step=steps_done)
+    return envs
 
-    def save() -> None:
-        save_checkpoint(checkpoint, parts, env_steps=steps_done, history=history,
-                        **{DATA_FINGERPRINT: fingerprint})  # fmt: skip
 
-    # ---- training ----------------------------------------------------------------------------
-    recent: deque[float] = deque(maxlen=20)
-    losses: dict[str, float] = {}
-    start, steps_at_start = time.perf_counter(), steps_done
-    bar = tqdm(
-        total=env_steps, initial=steps_done, desc=f"PAAC {env.name}", unit="step", unit_scale=True
-    )
-    updating = False  # between the optimizer's step and the count of env steps that it trained
-    window: list[dict[str, float]] = []  # the updates since the last history row
+class _TrainingLog:
+    """A run's progress: the env steps trained, the history (a row per ``log_every`` updates,
+    also written to the logger and the progress bar), and the last 20 training episodes' scores."""
 
-    def log_row() -> None:
-        """The updates of ``window`` as one row of the history, the logs and the progress bar."""
-        fps = (steps_done - steps_at_start) / (time.perf_counter() - start)
-        row = _history_row(steps_done, fps, window, recent)
-        row.update(dead_units.fractions())  # of the latest rollout
-        window.clear()
-        history.append(row)
-        if scalars is not None:
+    def __init__(
+        self, name: str, env_steps: int, steps_done: int, history: list[dict[str, float]],
+        scalars: Any, dead_units: DeadUnits,
+    ) -> None:  # fmt: skip
+        self.steps_done, self.history = steps_done, history
+        self.scalars, self.dead_units = scalars, dead_units
+        self.recent: deque[float] = deque(maxlen=20)
+        self.window: list[dict[str, float]] = []  # the updates since the last row
+        self._start, self._steps_at_start = time.perf_counter(), steps_done
+        self._bar = tqdm(
+            total=env_steps, initial=steps_done, desc=f"PAAC {name}", unit="step", unit_scale=True
+        )
+
+    def add(self, rollout: Rollout, values: dict[str, float]) -> None:
+        """An update trained on ``rollout``; ``values``: its part of the next row."""
+        self.steps_done += rollout.env_steps
+        self.recent.extend(rollout.scores)
+        self.window.append(values)
+        self._bar.update(rollout.env_steps)
+
+    def flush(self) -> None:
+        """The updates since the last row as one row of the history, the logs and the bar."""
+        if not self.window:
+            return
+        fps = (self.steps_done - self._steps_at_start) / (time.perf_counter() - self._start)
+        row = _history_row(self.steps_done, fps, self.window, self.recent)
+        row.update(self.dead_units.fractions())  # of the latest rollout
+        self.window = []
+        self.history.append(row)
+        if self.scalars is not None:
             for key, value in row.items():
                 if key != "env_steps":
-                    scalars.log_scalar(key, value, step=steps_done)
-        bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
+                    self.scalars.log_scalar(key, value, step=self.steps_done)
+        self._bar.set_postfix(score=f"{row.get('train/score', float('nan')):.1f}", fps=f"{fps:.0f}")
 
-    diverged: dict[str, Any] = {}  # where training stopped being numbers, if it did
-    clock.lap()  # the first row's times start with the loop, not with the envs' set-up
+    def close(self) -> None:
+        self._bar.close()
+
+
+def _train(
+    actor: Actor, learner: Learner, progress: _TrainingLog, save: Callable[[], None],
+    env_steps: int, rollout_steps: int, checkpoint_every: int, log_every: int,
+) -> dict[str, Any]:  # fmt: skip
+    """Rollouts and updates until ``env_steps`` are trained, a checkpoint every
+    ``checkpoint_every`` updates; the record's note of a divergence, empty if none came. An
+    interrupt (Ctrl-C, SIGTERM) saves a checkpoint unless it landed inside the optimizer's step."""
+    learner.clock.lap()  # the first row's times start with the loop, not with the envs' set-up
+    update = 0
     try:
-        update = 0
-        while steps_done < env_steps:
+        while progress.steps_done < env_steps:
             update += 1
             interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
-            dead_units.reset()
+            progress.dead_units.reset()
             try:
-                rollout = actor.rollout(loss.rollout_steps)  # the envs' steps, forward passes
+                rollout = actor.rollout(rollout_steps)  # the envs' steps, forward passes
             except FloatingPointError as error:  # the network's outputs stopped being numbers
-                diverged = _diverged(steps_done, update, str(error))
-                break
-            with clock.phase("backward"):  # the loss and its gradient
-                returns = n_step_returns(
-                    rollout.rewards, rollout.dones, rollout.bootstrap, loss.discount
-                )
-                total, loss_parts = paac_loss(
-                    rollout.logits, rollout.values, rollout.actions, returns,
-                    loss.entropy_coeff, loss.critic_coeff, loss.scale,
-                )  # fmt: skip
-                if reason := divergence(net, total):
-                    diverged = _diverged(steps_done, update, reason)
-                    break
-                opt.zero_grad(set_to_none=True)
-                total.backward()
-            with clock.phase("optimizer"):
-                grad_norm = torch.nn.utils.clip_grad_norm_(net.parameters(), optim.max_grad_norm)
-                updating = True
-                opt.step()
-                schedule.step()
-            steps_done += rollout.env_steps
-            updating = False
-            recent.extend(rollout.scores)
-            losses = {k: float(v) for k, v in loss_parts.items()}
-            if reason := divergence(net):  # the step left NaN or inf in the network
-                diverged = _diverged(steps_done, update, reason)
-                break
-            window.append({
-                "train/grad_norm": float(grad_norm),
-                "train/value_mean": float(rollout.values.detach().mean()),
-                "train/logit_spread": _logit_spread(rollout.logits),
-                **clock.lap(),  # time/env_ms, observation, forward, backward, optimizer, other
-                **_prefixed(losses),
-            })  # fmt: skip
-            bar.update(rollout.env_steps)
-            if update % log_every == 0 or steps_done >= env_steps:
-                log_row()
+                return _diverged(progress.steps_done, update, str(error))
+            try:
+                values = learner.update(rollout)
+            except Diverged as error:
+                steps = progress.steps_done + (rollout.env_steps if error.stepped else 0)
+                return _diverged(steps, update, str(error))
+            progress.add(rollout, {**values, **learner.clock.lap()})
+            if update % log_every == 0 or progress.steps_done >= env_steps:
+                progress.flush()
             if update % checkpoint_every == 0:
                 save()
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM through edr-run: keep what was trained
-        if not updating:
-            if window:
-                log_row()
+        if not learner.stepping:
+            progress.flush()
             save()
-            log.info("interrupted: checkpoint saved at %d env steps", steps_done)
+            log.info("interrupted: checkpoint saved at %d env steps", progress.steps_done)
         raise
-    finally:
-        bar.close()
-        envs.close()
-    if diverged:  # the checkpoint keeps the last network that was numbers; no games to score
-        log.warning("training diverged at %d env steps (%s): recorded as diverged",
-                    steps_done, diverged["train/diverged_reason"])  # fmt: skip
-        if window:
-            log_row()
-        scores: list[float] = []
-    else:
-        save()
-        scores = _evaluate(net, env_kwargs, env.frame_stack, backend, seed, evaluation)
-    # games cut short: random play under the same cap, on the same games, is the yardstick
-    random_scores = (
-        _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, env.frame_stack, backend, seed,
-                  evaluation)
-        if evaluation.capped and scores else None
-    )  # fmt: skip
-
-    # ---- results -----------------------------------------------------------------------------
-    save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
-    _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
-    scored = [row for row in history if "train/score" in row]
-    return {
-        "data/source": "emulator" if env.env_id is None else "gymnasium",
-        "data/game": env.name,
-        "data/fingerprint": fingerprint,
-        "train/env_steps": steps_done,
-        "train/fps": history[-1]["train/fps"] if history else float("nan"),
-        "train/score_first": scored[0]["train/score"] if scored else None,
-        "train/score_last": scored[-1]["train/score"] if scored else None,
-        **_prefixed(losses),
-        **({k: v for k, v in history[-1].items() if k.startswith("dead/")} if history else {}),
-        **_score_metrics(scores),
-        **_random_metrics(random_scores, evaluation),
-        **diverged,
-    }
+    return {}
 
 
 def _random_metrics(scores: list[float] | None, evaluation: EvalSettings) -> dict[str, float]:
@@ -323,16 +338,6 @@ def _check_memory(
         f"task.evaluation.plays={plays}, task.env.frame_stack={env.frame_stack}",
         f"one step's input of {plays} games played at once", plays * env.frame_stack * frame,
     )  # fmt: skip
-
-
-def _logit_spread(logits: torch.Tensor) -> float:
-    """How much the policy tells states apart: the logits' std across the rollout's states
-    (N*T of them), averaged over actions. Near 0 while the policy ignores what it sees."""
-    return float(logits.detach().reshape(-1, logits.shape[-1]).std(0).mean())  # (N*T, A) -> ()
-
-
-def _prefixed(losses: dict[str, float]) -> dict[str, float]:
-    return {f"train/{k}": v for k, v in losses.items()}
 
 
 def _history_row(

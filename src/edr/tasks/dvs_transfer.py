@@ -26,8 +26,8 @@ from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
 from edr.data.events import list_recordings, read_recording, sensor_of
 from edr.data.fingerprint import files_fingerprint
+from edr.models.divergence import divergence
 from edr.representations import EDR, DVSSimulator, events_to_frames
-from edr.tasks.divergence import divergence
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted, check_decoded_memory
@@ -105,6 +105,106 @@ def _predict(backbone: nn.Module, clips: torch.Tensor, true: np.ndarray, batch: 
     return predicted, float((predicted == true).mean()) if finite else float("nan")
 
 
+def _simulator(
+    simulator: dict[str, float] | None, dvs_root: str | None, train_fraction: float,
+    streams_per_class: int,
+) -> DVSSimulator:  # fmt: skip
+    """The DVS simulator of these settings; one line for settings that cannot work, before any
+    work."""
+    try:
+        sim = DVSSimulator(**(simulator or {}))
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"task.simulator: {error}") from None
+    if not dvs_root and round(train_fraction * streams_per_class) in (0, streams_per_class):
+        raise ConfigError(
+            f"task.train_fraction={train_fraction} of task.streams_per_class="
+            f"{streams_per_class} leaves no recording of a class to "
+            f"{'fine-tune on' if train_fraction < 0.5 else 'test'}: raise streams_per_class"
+        )
+    return sim
+
+
+def _pretrained(
+    pretrain: Callable[..., Fitted], out_dir: Path, seed: int, resume: bool
+) -> tuple[nn.Module, dict[str, Any]]:
+    """The ConvNet+RCN trained on KTH with EDR (in ``out_dir``), its backbone and metrics."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model, pretrained = pretrain(out_dir=out_dir, seed=seed, resume=resume)
+    edr = model.representation
+    if not isinstance(edr, EDR) or edr.out_channels(1) != 2:
+        raise ValueError(
+            "DVS transfer needs a network trained on EDR with one ON/OFF pair per pixel "
+            "(representation=edr with color gray or gray video, one timescale or combine=sum)"
+        )
+    return model.backbone, pretrained
+
+
+def _recorded_clips(
+    dvs_root: str, classes: list[str], sim: DVSSimulator, frames: int, crop: int
+) -> tuple[list[torch.Tensor], list[int], str]:
+    """Each recording under ``dvs_root`` (class/recording) as a clip of ``frames`` [ON, OFF]
+    frames (read only as far as that needs); their labels and the files' fingerprint."""
+    recordings = list_recordings(dvs_root, classes)
+    fingerprint = files_fingerprint([p for p, _ in recordings], Path(dvs_root))
+    clips, labels = [], []
+    for path, label in tqdm(recordings, desc="reading recordings", unit="file"):
+        events = read_recording(path, duration_us=frames * sim.frame_us)  # what is used
+        h, w = sensor_of(path, events)
+        start = int(events["t"][0])
+        clips.append(_event_clip(events, h, w, sim.frame_us, frames, crop, start))
+        labels.append(label)
+    return clips, labels, fingerprint
+
+
+def _simulated_clips(
+    pool: list[Any], frame_source: VideoSource, num_classes: int, per_class: int,
+    sim: DVSSimulator, frames: int, crop: int,
+) -> tuple[list[torch.Tensor], list[int]]:  # fmt: skip
+    """The first ``per_class`` videos of each class in ``pool`` recorded by the DVS simulator,
+    as clips of [ON, OFF] frames; their labels."""
+    chosen = [
+        v for label in range(num_classes) for v in [u for u in pool if u.label == label][:per_class]
+    ]
+    clips, labels = [], []
+    for video in tqdm(chosen, desc="simulating DVS", unit="video"):
+        gray = np.asarray(frame_source(video.path))[:, 0]  # (T, H, W)
+        h, w = gray.shape[1:]
+        clips.append(_event_clip(sim.simulate(gray), h, w, sim.frame_us, frames, crop))
+        labels.append(video.label)
+    return clips, labels
+
+
+def _finetune(
+    backbone: nn.Module, optimizer: Callable[..., torch.optim.Optimizer], train_x: torch.Tensor,
+    train_y: torch.Tensor, epochs: int, batch_size: int,
+) -> dict[str, Any]:  # fmt: skip
+    """Fine-tune ``backbone`` on the event clips ``train_x`` (N, T, 2, crop, crop); where it
+    diverged, if it did (recorded as recognition records it, not a crash)."""
+    opt = optimizer(backbone.parameters())
+    loss_fn = nn.CrossEntropyLoss()
+    step = 0
+    for epoch in (bar := tqdm(range(epochs), desc="fine-tuning", unit="epoch")):
+        backbone.train()
+        order = torch.randperm(len(train_x))
+        for i in range(0, len(order), batch_size):
+            interrupts.raise_if_stopping()
+            batch, step = order[i : i + batch_size], step + 1
+            loss = loss_fn(backbone(train_x[batch]), train_y[batch])
+            reason = divergence(backbone, loss)
+            if reason is None:
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                reason = divergence(backbone)
+            if reason is not None:
+                log.warning("fine-tuning diverged at step %d (%s): recorded as diverged",
+                            step, reason)  # fmt: skip
+                return {"train/diverged_epoch": epoch + 1, "train/diverged_step": step,
+                        "train/diverged_reason": reason}  # fmt: skip
+        bar.set_postfix(loss=f"{loss.item():.3f}")
+    return {}
+
+
 def dvs_transfer(
     *,
     out_dir: Path,
@@ -125,16 +225,7 @@ def dvs_transfer(
     The KTH videos the simulator records, and their frames and crop, are the pre-training's
     (``pretrain``'s settings). ``resume`` continues the pre-training from its checkpoint; fine-tuning is short and reruns.
     """
-    try:  # the simulator's settings, checked before any work
-        sim = DVSSimulator(**(simulator or {}))
-    except (TypeError, ValueError) as error:
-        raise ConfigError(f"task.simulator: {error}") from None
-    if not dvs_root and round(train_fraction * streams_per_class) in (0, streams_per_class):
-        raise ConfigError(
-            f"task.train_fraction={train_fraction} of task.streams_per_class="
-            f"{streams_per_class} leaves no recording of a class to "
-            f"{'fine-tune on' if train_fraction < 0.5 else 'test'}: raise streams_per_class"
-        )
+    sim = _simulator(simulator, dvs_root, train_fraction, streams_per_class)
 
     # ---- 1. event recordings, as [ON, OFF] frames: checked before any training -------------
     kth = kth_settings(pretrain)
@@ -143,17 +234,9 @@ def dvs_transfer(
     check_decoded_memory(kth["resize"], frames, 1, "task.pretrain")  # the simulator's, gray
     root = resolve_root(kth["data_root"], kth["synthetic"], cache_dir, "task.pretrain")
     classes = videos(root, train=True).classes
-    clips, labels = [], []
     if dvs_root:
         source_name = f"recordings under {dvs_root}"
-        recordings = list_recordings(dvs_root, classes)
-        fingerprint = files_fingerprint([p for p, _ in recordings], Path(dvs_root))
-        for path, label in tqdm(recordings, desc="reading recordings", unit="file"):
-            events = read_recording(path, duration_us=frames * sim.frame_us)  # what is used
-            h, w = sensor_of(path, events)
-            start = int(events["t"][0])
-            clips.append(_event_clip(events, h, w, sim.frame_us, frames, crop, start))
-            labels.append(label)
+        clips, labels, fingerprint = _recorded_clips(dvs_root, classes, sim, frames, crop)
     else:
         source_name = f"DVS simulator on {streams_per_class} videos per class of {root}"
         fingerprint = None  # the pre-training's videos: known once it has run
@@ -161,16 +244,9 @@ def dvs_transfer(
             cache_dir, size=tuple(kth["resize"]), gray=True, max_frames=kth["max_frames"]
         )
         pool = [v for split in (True, False) for v in videos(root, train=split).videos]
-        chosen = [
-            v
-            for label in range(len(classes))
-            for v in [u for u in pool if u.label == label][:streams_per_class]
-        ]
-        for video in tqdm(chosen, desc="simulating DVS", unit="video"):
-            gray = np.asarray(frame_source(video.path))[:, 0]  # (T, H, W)
-            h, w = gray.shape[1:]
-            clips.append(_event_clip(sim.simulate(gray), h, w, sim.frame_us, frames, crop))
-            labels.append(video.label)
+        clips, labels = _simulated_clips(
+            pool, frame_source, len(classes), streams_per_class, sim, frames, crop
+        )
     clips_t = torch.stack(clips) * event_scale  # (N, frames, 2, crop, crop)
     labels_np = np.array(labels)
     train_idx, test_idx = _split(labels_np, train_fraction, seed)
@@ -180,48 +256,14 @@ def dvs_transfer(
         )
 
     # ---- 2. the ConvNet+RCN trained on KTH with EDR ------------------------------------------
-    pretrain_dir = out_dir / "pretrain"
-    pretrain_dir.mkdir(parents=True, exist_ok=True)
-    model, pretrained = pretrain(out_dir=pretrain_dir, seed=seed, resume=resume)
-    edr = model.representation
-    if not isinstance(edr, EDR) or edr.out_channels(1) != 2:
-        raise ValueError(
-            "DVS transfer needs a network trained on EDR with one ON/OFF pair per pixel "
-            "(representation=edr with color gray or gray video, one timescale or combine=sum)"
-        )
-    backbone = model.backbone
+    backbone, pretrained = _pretrained(pretrain, out_dir / "pretrain", seed, resume)
     fingerprint = fingerprint or pretrained["data/fingerprint"]
 
     # ---- 3. straight in, then fine-tuned ------------------------------------------------------
     true = labels_np[test_idx]
     _, zero_shot = _predict(backbone, clips_t[test_idx], true)
-    opt = optimizer(backbone.parameters())
-    loss_fn = nn.CrossEntropyLoss()
     train_x, train_y = clips_t[train_idx], torch.from_numpy(labels_np[train_idx])
-    diverged: dict[str, Any] = {}  # where fine-tuning stopped being a number, if it did
-    step = 0
-    for epoch in (bar := tqdm(range(finetune_epochs), desc="fine-tuning", unit="epoch")):
-        backbone.train()
-        order = torch.randperm(len(train_x))
-        for i in range(0, len(order), batch_size):
-            interrupts.raise_if_stopping()
-            batch, step = order[i : i + batch_size], step + 1
-            loss = loss_fn(backbone(train_x[batch]), train_y[batch])
-            reason = divergence(backbone, loss)
-            if reason is None:
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                reason = divergence(backbone)
-            if reason is not None:  # a result to record, as recognition does, not a crash
-                diverged = {"train/diverged_epoch": epoch + 1, "train/diverged_step": step,
-                            "train/diverged_reason": reason}  # fmt: skip
-                log.warning("fine-tuning diverged at step %d (%s): recorded as diverged",
-                            step, reason)  # fmt: skip
-                break
-        if diverged:
-            break
-        bar.set_postfix(loss=f"{loss.item():.3f}")
+    diverged = _finetune(backbone, optimizer, train_x, train_y, finetune_epochs, batch_size)
     predicted, accuracy = _predict(backbone, clips_t[test_idx], true)
     scores, confusion = classification_metrics(predicted, true, classes)
     if diverged or np.isnan(accuracy):  # what a network of NaNs predicts is no accuracy

@@ -36,11 +36,11 @@ from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSo
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
+from edr.models.divergence import divergence
 from edr.rebuild import instantiate_from_record
 from edr.records import RECORD_NAME, read_record
 from edr.representations import EDR, Representation
 from edr.representations.base import check_enough_frames
-from edr.tasks.divergence import divergence
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import open_logger
@@ -56,6 +56,7 @@ from edr.validate import (
     PositiveFloat,
     PositiveInt,
     check_memory,
+    torch_device,
 )
 
 log = logging.getLogger(__name__)
@@ -144,132 +145,123 @@ def fit_recognition(
     representation; after a precomputed one), a control for what appearance alone can do.
     ``normalize_input``: each channel of the backbone's input standardised
     (:func:`edr.models.input_norm`), whatever the representation."""
-    # ---- data, checkpoint, logger ------------------------------------------------------------
-    if crop > min(resize):
-        raise ConfigError(
-            f"task.crop={crop}: expected at most the frames' short side, {min(resize)} "
-            f"(task.resize={list(resize)}): a crop is cut from a frame, then resized"
-        )
-    check_enough_frames(frames, {"the representation": representation})
-    check_decoded_memory(resize, frames, 1 if gray else 3)
-    in_frames = frames if representation.precompute else representation.out_frames(frames)
-    check_memory(
-        f"task.batch_size={batch_size}, task.frames={frames}, task.crop={crop}",
-        f"a batch of the backbone's input ({batch_size} clips of {in_frames} frames at "
-        f"{crop}x{crop}, float32)",
-        batch_size * in_frames * representation.out_channels(1 if gray else 3) * crop * crop * 4,
-    )
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    dev = torch.device(device)
-    root = resolve_root(data_root, synthetic, cache_dir)
-    train_videos, test_videos = videos(root, train=True), videos(root, train=False)
-    classes = train_videos.classes
-    untrained = sorted(set(classes) - {classes[v.label] for v in train_videos.videos})
-    if untrained:
-        raise ConfigError(
-            f"{root}: the training split holds no video of {', '.join(untrained)}: a class "
-            f"without training videos cannot be learned (nor is chance 1/{len(classes)}); "
-            "give it videos, or remove it from the data set"
-        )
-    data_fingerprint = videos_fingerprint(root, [train_videos, test_videos])
+    _check_sizes(crop, resize, frames, batch_size, 1 if gray else 3, representation)
+    dev = torch_device(device)
+    data = _Data.find(data_root, synthetic, cache_dir, videos)
     checkpoint = out_dir / CHECKPOINT
     state = load_checkpoint(checkpoint) if resume else None
     if state is not None:  # a checkpoint goes on only on the data it trained on
-        check_same_data(state, data_fingerprint, checkpoint)
-    scalars = open_logger(logger, out_dir, step=state["epoch"] if state else 0)
+        check_same_data(state, data.fingerprint, checkpoint)
     frame_source = VideoSource(cache_dir, size=tuple(resize), gray=gray, max_frames=max_frames)
-    if representation.precompute:  # computed once per video, like the paper's flows
-        source: Callable = PrecomputedSource(frame_source, representation, cache_dir)
-        online, negate, clip_frames = None, representation.hflip_negate, frames
-    else:
-        source, online, negate = frame_source, representation, ()
-        clip_frames = representation.out_frames(frames)
-    paths = [v.path for v in train_videos.videos + test_videos.videos]
-    frame_source.cache.fill(paths, frame_source.decode, desc="decoding")
-    if online is None:
-        source.cache.fill(
-            paths, source.compute, desc=f"precomputing {type(representation).__name__}"
-        )
-    clips = {"frames": frames, "crop": crop, "negate": negate, "shuffle_frames": shuffle_frames}
-    train_set = ClipDataset(train_videos, source, train=True, scales=scales, **clips)
-    test_set = ClipDataset(test_videos, source, train=False, **clips)
+    online, train_set, test_set, clip_frames = _clip_sets(
+        representation, frame_source, cache_dir, data, frames, crop, scales, shuffle_frames
+    )
 
     # ---- model, optimizer --------------------------------------------------------------------
     in_channels = representation.out_channels(frame_source.channels)
-    net = backbone(
-        in_channels=in_channels,
-        num_classes=len(classes),
-        frames=clip_frames,
-        height=crop,
-        width=crop,
-    )
+    backbone_args = {"in_channels": in_channels, "num_classes": len(data.classes),
+                     "frames": clip_frames, "height": crop, "width": crop}  # fmt: skip
     norm = input_norm(in_channels) if normalize_input else None
-    model = RecognitionModel(online, net, norm).to(dev)
+    model = RecognitionModel(online, backbone(**backbone_args), norm).to(dev)
     opt = optimizer(model.parameters())
     scheduler = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(milestones), gamma=gamma)
-    history: list[dict[str, float]] = []
-    start_epoch = 0
     parts = {"model": model, "optimizer": opt, "scheduler": scheduler}
+    history: list[dict[str, float]] = state["history"] if state else []  # a row per epoch
     if state is not None:
         restore(state, parts)
-        history, start_epoch = state["history"], state["epoch"]
-    loss_fn = nn.CrossEntropyLoss()
-    dead_units = DeadUnits(model)  # whether the network stays alive, per epoch
 
     # ---- training ----------------------------------------------------------------------------
-    diverged: dict[str, float] = {}  # where the loss stopped being a number, if it did
-    learnable = isinstance(online, EDR) and online.learnable
-    for epoch in range(start_epoch, epochs):
-        model.train()
+    def save() -> None:
+        save_checkpoint(checkpoint, parts, history=history, epoch=len(history),
+                        **{DATA_FINGERPRINT: data.fingerprint})  # fmt: skip
+
+    loader = functools.partial(_epoch_loader, train_set, clips_per_epoch, batch_size, num_workers)
+    scalars = open_logger(logger, out_dir, step=len(history))
+    diverged = _epochs(
+        model, opt, scheduler, loader, test_set, dev, history, epochs, eval_every, scalars, save
+    )
+
+    # ---- final evaluation --------------------------------------------------------------------
+    rebuild = {"online": online is not None, "input_norm": normalize_input,
+               "backbone_args": backbone_args}  # fmt: skip
+    metrics = _finish(out_dir, model, train_set, test_set, dev, history, data.classes, rebuild)
+    if diverged:  # what a network of NaNs predicts is no accuracy
+        metrics["eval/accuracy"] = float("nan")
+    data_part = data.metrics(data_root, synthetic, test_set, shuffle_frames)
+    return Fitted(model, {**data_part, **metrics, **diverged})
+
+
+def _epoch_loader(
+    train_set: ClipDataset, clips_per_epoch: int, batch_size: int, num_workers: int
+) -> DataLoader:
+    """An epoch: ``clips_per_epoch`` training clips drawn with replacement."""
+    sampler = RandomSampler(train_set, replacement=True, num_samples=clips_per_epoch)
+    return DataLoader(train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers)
+
+
+class _Data(NamedTuple):
+    """A run's videos: where they are, the training and test splits, their fingerprint."""
+
+    root: Path
+    train: VideoSet
+    test: VideoSet
+    fingerprint: str
+
+    @classmethod
+    def find(
+        cls, data_root: str | None, synthetic: Callable[..., Path], cache_dir: str,
+        videos: Callable[..., VideoSet],
+    ) -> _Data:  # fmt: skip
+        """The videos under ``data_root`` (generated into ``cache_dir`` without one); one line
+        for a class with no training video."""
+        root = resolve_root(data_root, synthetic, cache_dir)
+        train, test = videos(root, train=True), videos(root, train=False)
+        _check_every_class_trains(root, train)
+        return cls(root, train, test, videos_fingerprint(root, [train, test]))
+
+    @property
+    def classes(self) -> list[str]:
+        return self.train.classes
+
+    def metrics(
+        self, data_root: str | None, synthetic: Callable[..., Path], test_set: ClipDataset,
+        shuffle_frames: bool,
+    ) -> dict[str, Any]:  # fmt: skip
+        """The record's ``data/`` part: what the videos were and how they were cut."""
+        return {
+            **data_labels(data_root, synthetic, self.train),
+            "data/synthetic": data_root is None,
+            "data/root": str(self.root),
+            "data/fingerprint": self.fingerprint,
+            "data/train_videos": len(self.train),
+            "data/test_videos": len(self.test),
+            "data/test_clips": len(test_set),  # test items: one per video, unless split in time
+            "data/frame_order": "shuffled" if shuffle_frames else "in order",
+        }
+
+
+def _epochs(
+    model: RecognitionModel, opt: torch.optim.Optimizer, scheduler: Any,
+    loader: Callable[[], DataLoader], test_set: ClipDataset, dev: torch.device,
+    history: list[dict[str, float]], epochs: int, eval_every: int, scalars: Any,
+    save: Callable[[], None],
+) -> dict[str, Any]:  # fmt: skip
+    """Train from epoch ``len(history)`` to ``epochs``, a row of ``history`` and a checkpoint
+    per epoch; where the training diverged if it did (empty if not)."""
+    dead_units = DeadUnits(model)  # whether the network stays alive, per epoch
+    online = model.representation
+    for epoch in range(len(history), epochs):
         dead_units.reset()
-        sampler = RandomSampler(train_set, replacement=True, num_samples=clips_per_epoch)
-        loader = DataLoader(
-            train_set, batch_size=batch_size, sampler=sampler, num_workers=num_workers
-        )
-        total, correct, loss_sum, edr_grad_norms = 0, 0, 0.0, []
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", unit="batch")
-        for step, (clips, labels) in enumerate(bar, start=1):
-            interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
-            clips, labels = clips.to(dev), labels.to(dev)
-            logits = model(clips)
-            loss = loss_fn(logits, labels)
-            reason = divergence(model, loss)
-            if reason is None:
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                if learnable:  # the EDR layer's gradient, before the step: its stability
-                    edr_grad_norms.append(_grad_norm(online))
-                opt.step()
-                # a step can leave NaN in a layer the loss skips, or a learned EDR value
-                # outside its range (no events, ON and OFF swapped) while the loss is a number
-                reason = divergence(model) or (online.out_of_range() if learnable else None)
-            if reason is not None:  # diverged: a result to record, not a crash
-                diverged = {
-                    "train/diverged_epoch": epoch + 1,
-                    "train/diverged_step": epoch * len(loader) + step,
-                    "train/diverged_reason": reason,
-                }
-                break
-            total += len(labels)
-            correct += int((logits.argmax(-1) == labels).sum())
-            loss_sum += loss.item() * len(labels)
-            bar.set_postfix(loss=f"{loss_sum / total:.3f}", acc=f"{correct / total:.2f}")
+        row, diverged = _train_epoch(model, opt, loader(), dev, epoch, epochs)
         if diverged:
             log.warning(
                 "training diverged at epoch %d, step %d (%s): it stops here and the run is "
-                "recorded as diverged", epoch + 1, diverged["train/diverged_step"], reason
+                "recorded as diverged",
+                epoch + 1, diverged["train/diverged_step"], diverged["train/diverged_reason"],
             )  # fmt: skip
-            break
-        row = {
-            "epoch": epoch + 1,
-            "train/loss": loss_sum / total,
-            "train/accuracy": correct / total,
-            **dead_units.fractions(),  # units that fired on no training clip of the epoch
-            **_learned(online),  # a learnable EDR's half-lives, betas and nus, epoch by epoch
-        }
-        if edr_grad_norms:
-            row["edr/grad_norm"] = float(np.mean(edr_grad_norms))  # mean over the epoch's steps
+            return diverged
+        row.update(dead_units.fractions())  # units that fired on no training clip of the epoch
+        row.update(_learned(online))  # a learnable EDR's half-lives, betas and nus, by epoch
         row["train/lr"] = opt.param_groups[0]["lr"]
         scheduler.step()
         if (epoch + 1) % eval_every == 0 or epoch + 1 == epochs:
@@ -280,56 +272,139 @@ def fit_recognition(
             for key, value in row.items():
                 if key != "epoch":
                     scalars.log_scalar(key, value, step=epoch + 1)
-        save_checkpoint(checkpoint, parts, history=history, epoch=epoch + 1,
-                        **{DATA_FINGERPRINT: data_fingerprint})  # fmt: skip
+        save()
+    return {}
 
-    # ---- final evaluation --------------------------------------------------------------------
+
+def _finish(
+    out_dir: Path, model: RecognitionModel, train_set: ClipDataset, test_set: ClipDataset,
+    dev: torch.device, history: list[dict[str, float]], classes: list[str],
+    rebuild: dict[str, Any],
+) -> dict[str, Any]:  # fmt: skip
+    """The final test with 10 crops, the activations' sparsity on a few training clips, and
+    the files a run leaves (``model.pt`` with ``rebuild``, history, confusion, figures); the
+    record's test, training and model metrics."""
     predicted, true = evaluate(model, test_set, dev)
     scores, confusion = classification_metrics(predicted, true, classes)
     probe = torch.stack([train_set[i][0] for i in range(min(4, len(train_set)))]).to(dev)
     model.eval()
     sparsity = activation_sparsity(model, probe)
     model.cpu()
-    backbone_args = {
-        "in_channels": in_channels,
-        "num_classes": len(classes),
-        "frames": clip_frames,
-        "height": crop,
-        "width": crop,
-    }
-    save_atomic(
-        {
-            "state_dict": model.state_dict(),
-            "online": online is not None,
-            "input_norm": normalize_input,
-            "backbone_args": backbone_args,
-        },
-        out_dir / MODEL,
-    )
+    save_atomic({"state_dict": model.state_dict(), **rebuild}, out_dir / MODEL)
     write_json_atomic(out_dir / HISTORY, history)
     write_json_atomic(out_dir / CONFUSION, confusion)
     save_learning_curve(history, out_dir / "learning_curve.png")
     save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
-    metrics: dict[str, Any] = {
-        **data_labels(data_root, synthetic, train_videos),
-        "data/synthetic": data_root is None,
-        "data/root": str(root),
-        "data/fingerprint": data_fingerprint,
-        "data/train_videos": len(train_videos),
-        "data/test_videos": len(test_videos),
-        "data/test_clips": len(test_set),  # test items: one per video, unless split in time
-        "data/frame_order": "shuffled" if shuffle_frames else "in order",
+    return {
         **scores,
         "train/epochs": len(history),
         "train/loss": history[-1]["train/loss"] if history else float("nan"),
         "model/parameters": sum(p.numel() for p in model.parameters()),
         **{f"sparsity/{name}": value for name, value in sparsity.items()},
-        **_learned(online),
-        **diverged,
+        **_learned(model.representation),
     }
-    if diverged:  # what a network of NaNs predicts is no accuracy
-        metrics["eval/accuracy"] = float("nan")
-    return Fitted(model, metrics)
+
+
+def _check_sizes(
+    crop: int, resize: Sequence[int], frames: int, batch_size: int, channels: int,
+    representation: Representation,
+) -> None:  # fmt: skip
+    """One line for a crop larger than the frames, clips too short for the representation, or
+    sizes whose clips or batches cannot fit in memory."""
+    if crop > min(resize):
+        raise ConfigError(
+            f"task.crop={crop}: expected at most the frames' short side, {min(resize)} "
+            f"(task.resize={list(resize)}): a crop is cut from a frame, then resized"
+        )
+    check_enough_frames(frames, {"the representation": representation})
+    check_decoded_memory(resize, frames, channels)
+    in_frames = frames if representation.precompute else representation.out_frames(frames)
+    check_memory(
+        f"task.batch_size={batch_size}, task.frames={frames}, task.crop={crop}",
+        f"a batch of the backbone's input ({batch_size} clips of {in_frames} frames at "
+        f"{crop}x{crop}, float32)",
+        batch_size * in_frames * representation.out_channels(channels) * crop * crop * 4,
+    )
+
+
+def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
+    """One line for a class with no training video (it cannot be learned, nor is chance 1/K)."""
+    classes = train_videos.classes
+    untrained = sorted(set(classes) - {classes[v.label] for v in train_videos.videos})
+    if untrained:
+        raise ConfigError(
+            f"{root}: the training split holds no video of {', '.join(untrained)}: a class "
+            f"without training videos cannot be learned (nor is chance 1/{len(classes)}); "
+            "give it videos, or remove it from the data set"
+        )
+
+
+def _clip_sets(
+    representation: Representation, frame_source: VideoSource, cache_dir: str, data: _Data,
+    frames: int, crop: int, scales: Sequence[float], shuffle_frames: bool,
+) -> tuple[Representation | None, ClipDataset, ClipDataset, int]:  # fmt: skip
+    """Every video decoded (and, for a precomputed representation, computed once, like the
+    paper's flows) into the caches; returns the representation the model computes on the fly
+    (None when precomputed), the training and test clips, and the frames of a clip the
+    backbone sees."""
+    paths = [v.path for v in data.train.videos + data.test.videos]
+    frame_source.cache.fill(paths, frame_source.decode, desc="decoding")
+    if representation.precompute:
+        source: Callable = PrecomputedSource(frame_source, representation, cache_dir)
+        name = type(representation).__name__
+        source.cache.fill(paths, source.compute, desc=f"precomputing {name}")
+        online, clip_frames, negate = None, frames, representation.hflip_negate
+    else:
+        source, online, negate = frame_source, representation, ()
+        clip_frames = representation.out_frames(frames)
+    clips = {"frames": frames, "crop": crop, "negate": negate, "shuffle_frames": shuffle_frames}
+    train_set = ClipDataset(data.train, source, train=True, scales=scales, **clips)
+    test_set = ClipDataset(data.test, source, train=False, **clips)
+    return online, train_set, test_set, clip_frames
+
+
+def _train_epoch(
+    model: RecognitionModel, opt: torch.optim.Optimizer, loader: DataLoader, dev: torch.device,
+    epoch: int, epochs: int,
+) -> tuple[dict[str, float], dict[str, Any]]:  # fmt: skip
+    """One epoch of ``loader``'s clips: the history row's training part (loss, accuracy, a
+    learnable EDR's mean gradient norm), and where the training diverged if it did."""
+    model.train()
+    online = model.representation
+    learnable = isinstance(online, EDR) and online.learnable
+    loss_fn = nn.CrossEntropyLoss()
+    total, correct, loss_sum, edr_grad_norms = 0, 0, 0.0, []
+    bar = tqdm(loader, desc=f"epoch {epoch + 1}/{epochs}", unit="batch")
+    for step, (clips, labels) in enumerate(bar, start=1):
+        interrupts.raise_if_stopping()  # a Ctrl-C some callback dropped stops here
+        clips, labels = clips.to(dev), labels.to(dev)
+        logits = model(clips)
+        loss = loss_fn(logits, labels)
+        reason = divergence(model, loss)
+        if reason is None:
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if learnable:  # the EDR layer's gradient, before the step: its stability
+                edr_grad_norms.append(_grad_norm(online))
+            opt.step()
+            # a step can leave NaN in a layer the loss skips, or a learned EDR value
+            # outside its range (no events, ON and OFF swapped) while the loss is a number
+            reason = divergence(model) or (online.out_of_range() if learnable else None)
+        if reason is not None:  # diverged: a result to record, not a crash
+            bar.close()
+            return {}, {
+                "train/diverged_epoch": epoch + 1,
+                "train/diverged_step": epoch * len(loader) + step,
+                "train/diverged_reason": reason,
+            }
+        total += len(labels)
+        correct += int((logits.argmax(-1) == labels).sum())
+        loss_sum += loss.item() * len(labels)
+        bar.set_postfix(loss=f"{loss_sum / total:.3f}", acc=f"{correct / total:.2f}")
+    row = {"epoch": epoch + 1, "train/loss": loss_sum / total, "train/accuracy": correct / total}
+    if edr_grad_norms:
+        row["edr/grad_norm"] = float(np.mean(edr_grad_norms))  # mean over the epoch's steps
+    return row, {}
 
 
 def check_decoded_memory(

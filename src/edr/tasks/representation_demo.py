@@ -72,7 +72,23 @@ def representation_demo(
         seconds = time.perf_counter() - start
         metrics[f"fps/{name}"] = round(t_count / seconds, 1)
 
-    # ---- Figure 3a: one frame of each ----------------------------------------------------------
+    picture_path = _draw_frames(clip, outputs, representations, shown, (y, x), source, out_dir)
+    response_path = _draw_pixel(gray, outputs, (y, x), out_dir)
+    log.info("figures: %s, %s", picture_path, response_path)
+    metrics.update(
+        {"figure/representations": str(picture_path), "figure/pixel": str(response_path)}
+    )
+    return metrics
+
+
+def _draw_frames(
+    clip: torch.Tensor, outputs: dict[str, torch.Tensor],
+    representations: dict[str, Representation], shown: int, pixel: tuple[int, int], source: str,
+    out_dir: Path,
+) -> Path:  # fmt: skip
+    """Figure 3a: frame ``shown`` of ``clip`` (T, 3, H, W) and each output there, the pixel
+    marked; the figure's path."""
+    t_count = clip.shape[0]
     panels = [("video", clip[shown].permute(1, 2, 0).numpy() / 255.0)]
     for name, out in outputs.items():
         # Outputs of T-1 frames describe the step into frame t at index t-1.
@@ -83,13 +99,21 @@ def representation_demo(
         ax.imshow(picture.clip(0, 1))
         ax.set_title(title, fontsize=9)
         ax.axis("off")
-    axes[0].plot([x], [y], "c+", markersize=10)
+    axes[0].plot([pixel[1]], [pixel[0]], "c+", markersize=10)
     fig.suptitle(f"frame {shown} of {source}", fontsize=9)
     fig.tight_layout()
-    picture_path = out_dir / "representations.png"
-    save_figure(fig, picture_path, dpi=120)
+    path = out_dir / "representations.png"
+    save_figure(fig, path, dpi=120)
+    return path
 
-    # ---- Figure 3b: one pixel over time ------------------------------------------------------
+
+def _draw_pixel(
+    gray: torch.Tensor, outputs: dict[str, torch.Tensor], pixel: tuple[int, int], out_dir: Path
+) -> Path:
+    """Figure 3b: one pixel over time, its intensity (``gray``: (T, H, W)) above each output's
+    channels (the first 6); the figure's path."""
+    y, x = pixel
+    t_count = gray.shape[0]
     fig, axes = plt.subplots(
         len(outputs) + 1, 1, figsize=(7, 1.3 * (len(outputs) + 1)), sharex=True
     )
@@ -104,11 +128,6 @@ def representation_demo(
     axes[-1].set_xlabel("frame")
     fig.suptitle(f"pixel (y={y}, x={x})", fontsize=9)
     fig.tight_layout()
-    response_path = out_dir / "pixel_response.png"
-    save_figure(fig, response_path, dpi=120)
-
-    log.info("figures: %s, %s", picture_path, response_path)
-    metrics.update(
-        {"figure/representations": str(picture_path), "figure/pixel": str(response_path)}
-    )
-    return metrics
+    path = out_dir / "pixel_response.png"
+    save_figure(fig, path, dpi=120)
+    return path

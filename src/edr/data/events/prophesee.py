@@ -1,14 +1,14 @@
-"""Prophesee's files (EVT 2.0 / EVT 3.0 RAW, DAT) and, through the same decoder, iniVation DV's
-AEDAT 4.
+"""Prophesee's files (EVT 2.0 / EVT 3.0 RAW, DAT), and the writers of EVT 3.0 and AEDAT 4.
 
-All start with a text header ('%' lines for Prophesee, an XML block for AEDAT 4).
+All start with a text header of '%' lines.
 - EVT 3.0 is this module's numba decoder, exactly as Prophesee publishes it: 16-bit words whose
   4 high bits give the type; EVT_TIME_HIGH and EVT_TIME_LOW set the 12-bit halves of a 24-bit
   µs time (a TIME_HIGH that steps back is a wrap: +2**24), EVT_ADDR_Y sets y, EVT_ADDR_X is one
   event, VECT_BASE_X then VECT_12 / VECT_8 are up to 12 / 8 events at consecutive x. (faery
   0.7.1 keeps the largest time seen, so a TIME_LOW that steps back shifts events by up to
   11 µs on the shared sample: it is not used for EVT 3.0.)
-- EVT 2.0 and AEDAT 4 are decoded by faery (the optional extra ``events``), in packets.
+- EVT 2.0 is decoded by faery (the optional extra ``events``), in packets; faery also writes
+  EVT 3.0 and AEDAT 4.
 - DAT: after the header, for version >= 2, two bytes (event type, event size), then
   little-endian (uint32 timestamp µs, uint32 data) pairs with x in bits 0-13, y in bits 14-27
   and polarity in bits 28-31 (1 = ON).
@@ -31,7 +31,6 @@ from edr.data.events.checks import CHUNK_EVENTS, EVENT_DTYPE, RecordingError, ev
 # The sensor of a Prophesee camera whose header names only its plugin (hal_plugin_<key>_...)
 PLUGIN_SENSORS = {"gen3": (480, 640), "gen31": (480, 640), "gen4": (720, 1280),
                   "gen41": (720, 1280), "imx636": (720, 1280), "genx320": (320, 320)}  # fmt: skip
-FAERY_VERSIONS = {"EVT 2.0": "evt2"}
 
 
 def faery_module(path: Path, format_name: str) -> ModuleType:
@@ -92,23 +91,19 @@ def evt_version(path: Path) -> str | None:
     )
 
 
-def faery_chunks(path: Path, format_name: str) -> Iterator[np.ndarray]:
-    """EVT 2.0, EVT 3.0 or AEDAT 4 events, a packet at a time, decoded by faery."""
-    faery = faery_module(path, format_name)
+def evt2_chunks(path: Path) -> Iterator[np.ndarray]:
+    """EVT 2.0 events, a few packets at a time, decoded by faery."""
+    faery = faery_module(path, "EVT 2.0")
+    size = path.stat().st_size - data_offset(path)
+    if size % 4:  # EVT 2.0 words are 32-bit; faery drops a partial one silently
+        raise RecordingError(
+            path, "EVT 2.0", f"truncated: {size} bytes of words is not a multiple of 4"
+        )
+    height, width = prophesee_sensor(path) or (720, 1280)  # faery's own fallback
     try:
-        if format_name == "AEDAT 4":
-            stream = faery.events_stream_from_file(path, file_type="aedat")
-        else:
-            size = path.stat().st_size - data_offset(path)
-            if size % 4:  # EVT 2.0 words are 32-bit; faery drops a partial one silently
-                raise RecordingError(
-                    path, format_name, f"truncated: {size} bytes of words is not a multiple of 4"
-                )
-            height, width = prophesee_sensor(path) or (720, 1280)  # faery's own fallback
-            stream = faery.events_stream_from_file(
-                path, file_type="evt", dimensions_fallback=(width, height),
-                version_fallback=FAERY_VERSIONS[format_name],
-            )  # fmt: skip
+        stream = faery.events_stream_from_file(
+            path, file_type="evt", dimensions_fallback=(width, height), version_fallback="evt2"
+        )
         packets, held = [], 0
         for packet in chain(stream, [None]):  # (N,) faery's (t u64, x u16, y u16, on bool)
             if packet is not None:
@@ -118,20 +113,9 @@ def faery_chunks(path: Path, format_name: str) -> Iterator[np.ndarray]:
                 chunk, packets, held = joined(packets), [], 0
                 # a t beyond 2**63 turns negative here, and the checks refuse it
                 yield events_of(chunk["t"], chunk["x"], chunk["y"], chunk["on"])
-    except RecordingError:
-        raise
     except Exception as error:  # faery's decoders raise plain Exceptions on a corrupt file
         message = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise RecordingError(path, format_name, f"cannot be decoded ({message})") from None
-
-
-def aedat4_sensor(path: Path) -> tuple[int, int] | None:
-    faery = faery_module(path, "AEDAT 4")
-    try:
-        width, height = faery.events_stream_from_file(path, file_type="aedat").dimensions()
-    except Exception as error:
-        raise RecordingError(path, "AEDAT 4", f"cannot be decoded ({error})") from None
-    return height, width
+        raise RecordingError(path, "EVT 2.0", f"cannot be decoded ({message})") from None
 
 
 def write_with_faery(
@@ -158,61 +142,58 @@ def write_with_faery(
 def _evt3_count(words: np.ndarray) -> int:
     """How many events ``words`` (N,) uint16 hold."""
     n = 0
-    for w in words:
+    for i in range(len(words)):
+        w = np.int64(words[i])  # int64 arithmetic: a uint16's shifts and masks widen slowly
         kind = w >> 12
         if kind == 2:
             n += 1
         elif kind == 4 or kind == 5:
             mask = w & (0xFFF if kind == 4 else 0xFF)
-            while mask:
-                n += mask & 1
-                mask >>= 1
+            while mask:  # one turn per set bit
+                mask &= mask - 1
+                n += 1
     return n
 
 
 @njit(cache=True)
 def _evt3_decode(words, state, out):  # pragma: no cover (numba)
-    """Decode ``words`` (N,) uint16 into ``out`` (EVENT_DTYPE, sized by _evt3_count), record by
-    record (4x faster than four column arrays copied in after); ``state`` (6,) int64 carries
-    (time high, time low, wraps, y, base x, polarity) from one chunk to the next."""
+    """Decode ``words`` (N,) uint16 into ``out`` (EVENT_DTYPE, _evt3_count's events and one
+    spare slot), record by record (4x faster than four column arrays copied in after);
+    ``state`` (6,) int64 carries (time high, time low, wraps, y, base x, polarity) from one chunk
+    to the next. The common words (EVT_ADDR_Y, EVT_ADDR_X) and a vector's bits are decoded
+    without a branch, twice as fast: each writes the next slot ``out[n]`` and counts it only if
+    it is an event (n never passes the events' count, so the spare slot is the furthest
+    written)."""
     high, low, wraps, row, base, pol = state[0], state[1], state[2], state[3], state[4], state[5]
+    time = wraps + (high << 12) + low
     n = 0
-    for w in words:
+    for i in range(len(words)):
+        w = np.int64(words[i])
         kind = w >> 12
-        if kind == 0:  # EVT_ADDR_Y
-            row = w & 0x7FF
-        elif kind == 2:  # EVT_ADDR_X: one event
+        if kind <= 2:  # EVT_ADDR_Y (0) sets y; EVT_ADDR_X (2) is one event (1 is unused)
+            is_x = kind >> 1
+            row = row if is_x else w & 0x7FF
             event = out[n]
-            event.t, event.x, event.y, event.p = (
-                wraps + (high << 12) + low,
-                w & 0x7FF,
-                row,
-                (w >> 11) & 1,
-            )
-            n += 1
+            event.t, event.x, event.y, event.p = time, w & 0x7FF, row, (w >> 11) & 1
+            n += is_x
+        elif kind == 4 or kind == 5:  # VECT_12, VECT_8: an event at base + b for each set bit b
+            width = 12 if kind == 4 else 8
+            for b in range(width):
+                event = out[n]
+                event.t, event.x, event.y, event.p = time, base + b, row, pol
+                n += (w >> b) & 1
+            base += width
         elif kind == 3:  # VECT_BASE_X
             base, pol = w & 0x7FF, (w >> 11) & 1
-        elif kind == 4 or kind == 5:  # VECT_12, VECT_8
-            width = 12 if kind == 4 else 8
-            mask = w & ((1 << width) - 1)
-            for i in range(width):
-                if (mask >> i) & 1:
-                    event = out[n]
-                    event.t, event.x, event.y, event.p = (
-                        wraps + (high << 12) + low,
-                        base + i,
-                        row,
-                        pol,
-                    )
-                    n += 1
-            base += width
         elif kind == 6:  # EVT_TIME_LOW
             low = w & 0xFFF
+            time = wraps + (high << 12) + low
         elif kind == 8:  # EVT_TIME_HIGH
             new = w & 0xFFF
             if new < high:
                 wraps += 1 << 24
             high = new
+            time = wraps + (high << 12) + low
     state[0], state[1], state[2], state[3], state[4], state[5] = high, low, wraps, row, base, pol
 
 
@@ -228,9 +209,10 @@ def evt3_chunks(path: Path) -> Iterator[np.ndarray]:
     state = np.zeros(6, np.int64)
     for start in range(0, len(words), CHUNK_EVENTS):
         part = np.ascontiguousarray(words[start : start + CHUNK_EVENTS])
-        events = np.empty(_evt3_count(part), EVENT_DTYPE)
+        n = _evt3_count(part)
+        events = np.empty(n + 1, EVENT_DTYPE)  # and _evt3_decode's spare slot
         _evt3_decode(part, state, events)
-        yield events
+        yield events[:n]
 
 
 def dat_chunks(path: Path) -> Iterator[np.ndarray]:

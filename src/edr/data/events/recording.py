@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from edr.data.events import datasets, jaer, prophesee
+from edr.data.events import aedat4, datasets, jaer, prophesee
 from edr.data.events.checks import EVENT_DTYPE, MAX_SIDE, Checked, RecordingError, joined
 from edr.validate import ConfigError
 
@@ -31,10 +31,6 @@ class EventFormat:
     write: Callable[[Path, np.ndarray, tuple[int, int]], Path] | None = None
 
 
-def _faery(name: str) -> Callable[[Path], Iterator[np.ndarray]]:
-    return lambda path: prophesee.faery_chunks(path, name)
-
-
 def _faery_writer(name: str) -> Callable[[Path, np.ndarray, tuple[int, int]], Path]:
     return lambda path, events, sensor: prophesee.write_with_faery(path, events, sensor, name)
 
@@ -45,9 +41,9 @@ FORMATS = {
         EventFormat("AEDAT 2.0", (".aedat", ".dat"), jaer.aedat2_sensor, jaer.aedat2_chunks,
                     jaer.write_aedat2),
         EventFormat("AEDAT 3.1", (".aedat", ".aedat3"), jaer.aedat31_sensor, jaer.aedat31_chunks),
-        EventFormat("AEDAT 4", (".aedat4",), prophesee.aedat4_sensor, _faery("AEDAT 4"),
+        EventFormat("AEDAT 4", (".aedat4",), aedat4.aedat4_sensor, aedat4.aedat4_chunks,
                     _faery_writer("AEDAT 4")),
-        EventFormat("EVT 2.0", (".raw",), prophesee.prophesee_sensor, _faery("EVT 2.0")),
+        EventFormat("EVT 2.0", (".raw",), prophesee.prophesee_sensor, prophesee.evt2_chunks),
         EventFormat("EVT 3.0", (".raw",), prophesee.prophesee_sensor, prophesee.evt3_chunks,
                     _faery_writer("EVT 3.0")),
         EventFormat("DAT", (".dat",), prophesee.prophesee_sensor, prophesee.dat_chunks),
