@@ -297,7 +297,7 @@ def hydra_app(cfg: DictConfig) -> None:
 def cli() -> None:
     """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
     of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
-    (:mod:`edr.interrupts`)."""
+    (:mod:`edr.interrupts`); a sweep says its summary line before it."""
     interrupts.install()
     try:
         main()
