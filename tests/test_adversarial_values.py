@@ -421,7 +421,7 @@ def test_a_learnable_edr_whose_values_blow_up_is_recorded_as_diverged(
     loss is still a number. Recorded as diverged at that step, with the value that left."""
     metrics = run(compose_config(
         *TINY_KTH, "representation.learnable=true", "optimizer=adam", "optimizer.lr=1e6",
-        f"+representation.parameterization={parameterization}", f"task.cache_dir={cache}",
+        f"representation.parameterization={parameterization}", f"task.cache_dir={cache}",
         f"out_dir={tmp_path}",
     ))  # fmt: skip
     record = json.loads((tmp_path / "run.json").read_text())

@@ -162,26 +162,6 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
 
 
-def test_config_defaults_are_the_settings_defaults(compose_config) -> None:
-    """conf/task/atari.yaml repeats edr.rl.settings' defaults and train_paac's; they agree."""
-    import inspect
-
-    from hydra.utils import instantiate
-
-    cfg = compose_config("task=atari")
-    defaults = {
-        name: p.default for name, p in inspect.signature(atari.train_paac).parameters.items()
-    }
-    for section in ("env", "network", "loss", "optim", "evaluation"):
-        built = instantiate(cfg.task[section])
-        expected = defaults[section]
-        if section == "env":  # the EDR layer comes from the representation group
-            expected = type(expected)(edr=built.edr)
-        assert built == expected, section
-    for key in ("env_steps", "checkpoint_every", "log_every", "logger"):
-        assert cfg.task[key] == defaults[key], key
-
-
 def test_groups_atari_does_not_read_leave_its_fingerprint_alone(compose_config) -> None:
     from edr.identity import ignored_overrides, run_identity
 

@@ -206,7 +206,10 @@ def _check_line(*argv: str) -> None:
         (["task.epochs=abc"], "no such key epochs in task=representation_demo (the default"),
         (["task=kth", "task.epochs=abc"], "task.epochs='abc': expected an integer"),
         (["+task.new_key=1"], "takes no argument new_key"),
-        (["+representation.parameterizaton=log"], "+representation.parameterization=log?"),
+        (
+            ["+representation.parameterizaton=log"],
+            "did you mean representation.parameterization=log?",
+        ),
         (["-m", "task=kth", "representation=edr,fdrr"], "representation=fdrr: no such option"),
     ],
 )
@@ -219,8 +222,9 @@ def test_a_typo_is_refused_in_one_line_naming_the_nearest_key(argv, said) -> Non
 @pytest.mark.parametrize(
     "argv",
     [
-        ["+representation.parameterization=bounded"],  # conf/representation/edr.yaml documents
-        ["+representation.bptt_window=10"],  # these two additions
+        ["representation.parameterization=bounded"],  # docs/library.md's learnable settings
+        ["representation.bptt_window=10"],
+        ["+backbone.head.kernel=5"],  # an argument the config leaves out, added
         ["task=kth", "++task.epochs=3"],
         ["-m", "experiment=table4_kth", "debug=tiny"],
         ["task=atari", "game=breakout", "task.env.inputs=fdr", "debug=tiny"],
@@ -314,6 +318,19 @@ def test_no_import_runs_back_up_a_floor() -> None:
                 if floor is not None and floor < mine and FLOORS[floor] != TASKS_HELPERS.get(top):
                     upward.append(f"{path.relative_to(package)} imports {node.module}")
     assert upward == []
+
+
+# What edr-tables, which only reads records, must not load: the training floors, the emulator and
+# torchrl, and the representations with their numba kernels.
+NOT_FOR_TABLES = ("edr.tasks", "edr.rl", "edr.representations", "torchrl", "ale_py", "numba")
+
+
+def test_edr_tables_imports_no_training_code() -> None:
+    code = "import sys, edr.tables; print(*sys.modules)"
+    loaded = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert [m for m in loaded if any(f"{m}.".startswith(f"{n}.") for n in NOT_FOR_TABLES)] == []
 
 
 def test_the_readme_layout_names_every_module_and_top_level_folder() -> None:

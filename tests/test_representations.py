@@ -76,7 +76,8 @@ def test_rgb_diff_and_fdr_values() -> None:
     clip[0, 1, 2] = 255
     diff = RGBDiff()(clip)
     assert diff[0, 0, 2].eq(1).all() and diff[0, 0, :2].eq(0).all()
-    assert FDR()(clip).max() == 1.0
+    assert FDR(offset=0.0)(clip).max() == 1.0
+    assert FDR()(clip).min() == -0.5  # centred: fdr.yaml's and the default
     assert FDR(color="gray")(clip).shape == (1, 2, 1, 2, 2)
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import edr.validate
+import edr.tasks.scalars
 from edr.atomic import atomic_path, publish_dir
 from edr.data.clips import VideoSource
 from edr.data.datasets import DataLayoutError, resolve_root
@@ -77,7 +77,7 @@ def test_bad_settings_fail_before_any_work(compose_config, tmp_path, override, m
 def test_a_missing_logger_package_fails_before_any_work(
     compose_config, tmp_path, monkeypatch
 ) -> None:
-    monkeypatch.setitem(edr.validate.LOGGER_PACKAGES, "wandb", "edr_no_such_package")
+    monkeypatch.setitem(edr.tasks.scalars.LOGGER_PACKAGES, "wandb", "edr_no_such_package")
     cfg = compose_config(*TINY_KTH, f"out_dir={tmp_path}", "task.logger=wandb")
     with pytest.raises(ConfigError, match=r"task.logger='wandb': expected the edr_no_such_package"):
         run(cfg)

@@ -38,9 +38,18 @@ NON_SEMANTIC_SECTIONS = frozenset({"hydra", "paths"})
 IDENTITY_KEYS = ("seed", "task")
 # Groups whose files write into another section (``# @package representation``).
 PACKAGED_INTO = {"ablation": "representation"}
-# Settings added after runs were recorded, with the value those runs had: at that value a key
-# stays out of the fingerprint, so adding a setting with its default keeps old runs' identities.
-ADDED_DEFAULTS: dict[str, Any] = {"task.network.input_norm": "raw"}
+# Arguments added after runs were recorded, per class or function (a node's ``_target_``), with
+# the value those runs had: at that value the key stays out of the fingerprint wherever a node of
+# that target sits (EDR: task.representation, task.env.edr, task.representations.*), so adding
+# a setting to the config with its default keeps old runs' identities.
+ADDED_DEFAULTS: dict[str, dict[str, Any]] = {
+    "edr.rl.settings.NetworkSettings": {"input_norm": "raw"},
+    "edr.representations.EDR": {
+        "parameterization": "log",
+        "bptt_window": None,
+        "out_dtype": "float32",
+    },
+}
 MAX_DIRNAME = 120  # longer job folder names end in a digest
 log = logging.getLogger(__name__)
 
@@ -64,16 +73,19 @@ def digest(payload: Any, length: int = 16) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:length]
 
 
-def without_added_defaults(config: dict[str, Any]) -> dict[str, Any]:
-    """``config`` without the keys of :data:`ADDED_DEFAULTS` that hold their default (in place)."""
-    for dotted, default in ADDED_DEFAULTS.items():
-        *path, key = dotted.split(".")
-        node: Any = config
-        for part in path:
-            node = node.get(part) if isinstance(node, Mapping) else None
-        if isinstance(node, dict) and key in node and node[key] == default:
-            del node[key]
-    return config
+def without_added_defaults(node: Any) -> Any:
+    """``node`` without the arguments of :data:`ADDED_DEFAULTS` that hold their old value, in
+    every node it holds that builds their target (in place)."""
+    if isinstance(node, dict):
+        for key, old in ADDED_DEFAULTS.get(node.get("_target_"), {}).items():
+            if key in node and node[key] == old:
+                del node[key]
+        for value in node.values():
+            without_added_defaults(value)
+    elif isinstance(node, list):
+        for value in node:
+            without_added_defaults(value)
+    return node
 
 
 def _identity_config(cfg: DictConfig) -> dict[str, Any]:

@@ -4,7 +4,7 @@ A key that does not exist is refused in one line naming the nearest real one, wh
 typed plainly (Hydra: "not in struct", several lines) or with ``+`` (Hydra adds it silently,
 and the run goes on in a folder named after the typo). A ``+`` addition is legal inside a node
 that builds an object, where it names one of that object's arguments
-(``+representation.parameterization=bounded``); nowhere else.
+(``+backbone.head.kernel=5``); nowhere else.
 """
 
 from __future__ import annotations

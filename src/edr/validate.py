@@ -10,7 +10,6 @@ import importlib.util
 import inspect
 import math
 import os
-import re
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
@@ -61,23 +60,6 @@ NonNegativeFloat = Annotated[float, Range(0)]
 Fraction = Annotated[float, Range(0, 1, open=True)]
 BelowOne = Annotated[float, Range(0, 1, open_high=True)]  # [0, 1)
 OpenFraction = Annotated[float, Range(0, 1, open=True, open_high=True)]  # (0, 1)
-
-# The torchrl loggers a task can write to, and the package each needs.
-LOGGER_PACKAGES = {"csv": None, "tensorboard": "tensorboard", "mlflow": "mlflow", "wandb": "wandb"}
-
-
-def _logger_problem(name: Any) -> str | None:
-    if name in ("", None):
-        return None
-    if name not in LOGGER_PACKAGES:
-        return f"one of {', '.join(LOGGER_PACKAGES)} or '' (no logger)"
-    package = LOGGER_PACKAGES[name]
-    if package and importlib.util.find_spec(package) is None:
-        return f"the {package} package installed for logger={name} (pip install '.[loggers]')"
-    return None
-
-
-LoggerName = Annotated[str, Check(_logger_problem)]
 
 
 def _module_problem(name: Any) -> str | None:
@@ -243,21 +225,6 @@ def _non_empty_problem(values: Any) -> str | None:
 NonEmpty = Check(_non_empty_problem)  # for Annotated[Sequence[...], NonEmpty]
 
 
-def _game_problem(game: Any) -> str | None:
-    import difflib
-
-    import ale_py.roms
-
-    rom_id = re.sub(r"(?<!^)(?=[A-Z])", "_", str(game)).lower()  # MsPacman -> ms_pacman
-    known = ale_py.roms.get_all_rom_ids()
-    if rom_id in known:
-        return None
-    names = ["".join(w.capitalize() for w in r.split("_")) for r in known]
-    near = difflib.get_close_matches(str(game), names, n=3, cutoff=0.5)
-    return f"an ALE game ({', '.join(near) if near else 'see ale_py.roms.get_all_rom_ids()'}?)"
-
-
-AtariGame = Annotated[str, Check(_game_problem)]  # a game whose ROM ale-py ships
 # A torch optimizer's arguments (its own annotations do not say their ranges).
 OPTIMIZER_ARGUMENTS = {
     "lr": PositiveFloat,

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from edr.atomic import atomic_path, save_figure, write_text_atomic
-from edr.report.atari import atari_runs, normalised_scores
+from edr.report.atari import INPUT_NAMES, atari_runs, normalised_scores
 from edr.report.recognition import learnable_runs, without_ablations
 from edr.report.render import provenance
 from edr.report.runs import (
@@ -29,7 +29,6 @@ from edr.report.runs import (
     run_history,
     run_json,
 )
-from edr.rl.settings import INPUT_NAMES
 
 Draw = Callable[[], "plt.Figure | None"]
 

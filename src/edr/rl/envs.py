@@ -22,12 +22,13 @@ The paper's Appendix C input is RGB FDR + EDR on gray = 5 channels.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import hashlib
 import importlib
 import os
 import re
-from typing import Literal
+from typing import Annotated, Any, Literal
 
 import ale_py
 import ale_py.roms
@@ -50,6 +51,7 @@ from torchrl.envs import (
 
 from edr.representations import EDR
 from edr.rl.transform import ObservationFrame
+from edr.validate import Check
 
 gym.register_envs(ale_py)
 
@@ -78,10 +80,26 @@ def gym_atari(
     raise ValueError(f"preset must be 'paac' or 'v5', got {preset!r}")
 
 
+def rom_id(game: str) -> str:
+    """ALE's ROM id of a game name: ``MsPacman`` -> ``ms_pacman``."""
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", game).lower()
+
+
+def _game_problem(game: Any) -> str | None:
+    known = ale_py.roms.get_all_rom_ids()
+    if rom_id(str(game)) in known:
+        return None
+    names = ["".join(w.capitalize() for w in r.split("_")) for r in known]
+    near = difflib.get_close_matches(str(game), names, n=3, cutoff=0.5)
+    return f"an ALE game ({', '.join(near) if near else 'see ale_py.roms.get_all_rom_ids()'}?)"
+
+
+AtariGame = Annotated[str, Check(_game_problem)]  # a game whose ROM ale-py ships
+
+
 def rom_fingerprint(game: str) -> str:
     """``ale-py <version>, <rom>.bin md5 <digest>``: which emulator and ROM a run played."""
-    rom_id = re.sub(r"(?<!^)(?=[A-Z])", "_", game).lower()  # MsPacman -> ms_pacman
-    path = ale_py.roms.get_rom_path(rom_id)
+    path = ale_py.roms.get_rom_path(rom_id(game))
     if path is None:
         raise ValueError(f"ale-py {ale_py.__version__} has no ROM for the game {game!r}")
     return (

@@ -11,10 +11,9 @@ from typing import Literal
 
 from edr.models.paac import Core, Init, InputNorm
 from edr.representations import EDR
-from edr.rl.envs import Backend, Preset
+from edr.rl.envs import AtariGame, Backend, Preset
 from edr.rl.optim import OptimizerName
 from edr.validate import (
-    AtariGame,
     Fraction,
     ModuleName,
     NonNegativeFloat,
@@ -23,7 +22,6 @@ from edr.validate import (
 )
 
 Inputs = Literal["fdr", "fdr_edr", "edr"]
-INPUT_NAMES: dict[str, str] = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}  # as Table 1
 BackendChoice = Backend | Literal["auto"]
 
 

@@ -49,7 +49,6 @@ from edr.rl.learner import Diverged, Learner
 from edr.rl.phases import PhaseClock
 from edr.rl.rollout import Actor, Rollout, UniformPolicy, observations_held
 from edr.rl.settings import (
-    INPUT_NAMES,
     EnvSettings,
     EvalSettings,
     LossSettings,
@@ -58,8 +57,8 @@ from edr.rl.settings import (
 )
 from edr.rl.transform import ObservationFrame
 from edr.tasks.plots import save_score_curve
-from edr.tasks.scalars import open_logger
-from edr.validate import ConfigError, LoggerName, PositiveInt, check_memory
+from edr.tasks.scalars import LoggerName, open_logger
+from edr.validate import ConfigError, PositiveInt, check_memory
 
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # a row per log_every updates: env steps, losses, fps, training score
@@ -139,7 +138,7 @@ def train_paac(
     scores, evaluated = _evaluation(net, env_kwargs, env.frame_stack, backend, seed, evaluation,
                                     played=not diverged)  # fmt: skip
     save_atomic({"state_dict": net.state_dict(), "arguments": arguments}, out_dir / NETWORK)
-    _write_results(out_dir, history, scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
+    _write_results(out_dir, history, scores, f"{env.name}, inputs={env.inputs}")
     return {
         "data/source": "emulator" if env.env_id is None else "gymnasium",
         "data/game": env.name,
@@ -472,7 +471,7 @@ def evaluate_checkpoint(
     scores = _evaluate(
         network, env_kwargs, env.frame_stack, env.resolved_backend(), record["seed"], evaluation
     )
-    _write_results(run_dir, state["history"], scores, f"{env.name}, {INPUT_NAMES[env.inputs]}")
+    _write_results(run_dir, state["history"], scores, f"{env.name}, inputs={env.inputs}")
     metrics = {"train/env_steps": state["env_steps"], **_score_metrics(scores)}
     write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
     return metrics

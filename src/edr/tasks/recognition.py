@@ -43,13 +43,12 @@ from edr.representations import EDR, Representation
 from edr.representations.base import check_enough_frames
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
-from edr.tasks.scalars import open_logger
+from edr.tasks.scalars import LoggerName, open_logger
 from edr.validate import (
     ConfigError,
     DataRoot,
     Device,
     Fraction,
-    LoggerName,
     NonEmpty,
     NonNegativeInt,
     OutputDir,

@@ -1,16 +1,35 @@
-"""The scalar logger a training task writes to (torchrl's), rewound when a run resumes."""
+"""The scalar logger a training task writes to (torchrl's), rewound when a run resumes, and
+the names a config may give it."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Any
 
 from edr.atomic import write_text_atomic
+from edr.validate import Check
 
 if TYPE_CHECKING:
     from torchrl.record.loggers import Logger
 
 LOG_DIR = "logs"  # under the run directory
+# The torchrl loggers a task can write to, and the package each needs.
+LOGGER_PACKAGES = {"csv": None, "tensorboard": "tensorboard", "mlflow": "mlflow", "wandb": "wandb"}
+
+
+def _logger_problem(name: Any) -> str | None:
+    if name in ("", None):
+        return None
+    if name not in LOGGER_PACKAGES:
+        return f"one of {', '.join(LOGGER_PACKAGES)} or '' (no logger)"
+    package = LOGGER_PACKAGES[name]
+    if package and importlib.util.find_spec(package) is None:
+        return f"the {package} package installed for logger={name} (pip install '.[loggers]')"
+    return None
+
+
+LoggerName = Annotated[str, Check(_logger_problem)]  # a logger above, or '' for none
 
 
 def rewind_csv_logs(log_dir: Path, step: int) -> None:
