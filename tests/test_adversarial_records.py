@@ -135,6 +135,23 @@ def test_a_file_linked_outside_its_run_folder_is_not_read(name, tmp_path) -> Non
     assert not any(b"leaked" in p.read_bytes() for p in copied)
 
 
+def test_a_record_or_bench_record_linked_from_outside_is_not_read(tmp_path) -> None:
+    secret = tmp_path / "secret.json"
+    secret.write_text(json.dumps(_record(seed=7, metrics={"eval/accuracy": 0.987654,
+                                                         "eval/chance": 1 / 6})))  # fmt: skip
+    runs = tmp_path / "runs"
+    _write(runs / "good", _record())
+    (runs / "linked").mkdir()
+    (runs / "linked" / "run.json").symlink_to(secret)
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    (bench / "speed_zz_linked.json").symlink_to(secret)
+    printed = _render(runs, tmp_path / "out", "--bench", str(bench))
+    assert "98.8" not in (tmp_path / "out" / "table4_kth.md").read_text()
+    assert "linked/run.json" in printed and "a symbolic link" in printed
+    assert "speed_zz_linked.json" in printed and "links outside" in printed
+
+
 # ---- case 2: run folders reached through a link are said, not silently skipped -----------------
 def test_a_linked_run_folder_is_listed_not_silently_skipped(tmp_path) -> None:
     elsewhere = _write(tmp_path / "elsewhere" / "one", _record(seed=1)).parent
@@ -345,6 +362,35 @@ def test_a_read_only_results_folder_is_one_line_before_any_work(tmp_path) -> Non
     assert "Traceback" not in result.stderr
 
 
+def _long_folder(root: Path, length: int) -> Path:
+    """A folder path of about ``length`` bytes under ``root``, in names of 200 bytes."""
+    return Path(str(root / "/".join(["d" * 200] * 25))[:length].rstrip("/"))
+
+
+@pytest.mark.parametrize("kind", ["run", "sweep"])
+@pytest.mark.parametrize("length", [3700, 4090, 4200], ids=["no room", "at PATH_MAX", "past it"])
+def test_a_folder_with_no_room_for_a_runs_files_is_one_line_before_hydra(
+    kind, length, tmp_path, capsys
+) -> None:
+    """A run folder Hydra could make, but not its ``.hydra/config.yaml`` or ``run.log`` in it,
+    once failed inside Hydra with a traceback."""
+    from hydra import compose, initialize_config_dir
+
+    from edr.run import CONF_DIR
+    from edr.store import RunFolder
+
+    folder = _long_folder(tmp_path, length)
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        config = compose("config", overrides=[f"hydra.{kind}.dir={folder}"],
+                         return_hydra_config=True)  # fmt: skip
+    with pytest.raises(SystemExit) as exit_:
+        getattr(RunFolder(), f"on_{'multi' if kind == 'sweep' else ''}run_start")(config)
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and error.count("\n") == 1, error
+    assert f"hydra.{kind}.dir=" in error and "levels of names under it" in error
+    assert not list(tmp_path.iterdir())  # nothing made
+
+
 @pytest.mark.slow
 @needs_mount
 def test_a_full_disk_says_which_checkpoint_is_whole_in_one_line_and_records_the_failure(tmp_path):
@@ -442,6 +488,61 @@ def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(tmp_path) -> Non
     assert "seed=-1: expected a number >= 0" in output
     last = result.stdout.strip().splitlines()[-1]  # the log's last line
     assert "1 ran, 0 failed, 0 interrupted, 1 refused" in last, last
+
+
+# A sweep whose cells do no work: the second one breaks (or gets a signal) as a task would.
+SWEEP_DRIVER = """
+import os, signal, sys, time
+from pathlib import Path
+import edr.run
+from edr.store import log_attempt
+
+def cell(cfg):
+    out = Path(cfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    outcome = "ran"
+    try:
+        if cfg.seed == 1:
+            outcome = "{outcome}"
+            {action}
+    finally:
+        log_attempt(out, outcome, "fingerprint")  # as edr.run.run logs each attempt
+    return {{}}
+
+edr.run.run = cell
+sys.argv = ["edr-run", *sys.argv[1:]]
+edr.run.cli()
+"""
+CELL_ENDS = {
+    "a failing cell": ("failed", "raise RuntimeError('a cell that breaks')", 1),
+    "Ctrl-C": ("interrupted", "os.kill(os.getpid(), signal.SIGINT); time.sleep(60)", 130),
+    "SIGTERM": ("interrupted", "os.kill(os.getpid(), signal.SIGTERM); time.sleep(60)", 143),
+}
+
+
+@pytest.mark.parametrize(
+    "end", [pytest.param(e, marks=pytest.mark.slow) if e == "SIGTERM" else e for e in CELL_ENDS]
+)  # SIGTERM takes Ctrl-C's path: checked with the slow tests
+def test_a_sweep_ends_with_its_summary_line_whatever_its_cells_did(end, tmp_path) -> None:
+    outcome, action, status = CELL_ENDS[end]
+    sweep = tmp_path / "sweep"
+    result = subprocess.run(
+        [sys.executable, "-c", SWEEP_DRIVER.format(outcome=outcome, action=action), "-m",
+         "seed=0,1,2", f"hydra.sweep.dir={sweep}"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=300,
+        env={**os.environ, "PYTHONPATH": SRC, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+    said = result.stdout + result.stderr
+    assert result.returncode == status, said[-3000:]
+    assert "Traceback" not in said
+    (summary,) = [line for line in result.stdout.splitlines() if f"sweep {sweep}:" in line]
+    if outcome == "failed":  # the sweep goes on to its third cell, then says what happened
+        assert summary.endswith("0 skipped, 0 resumed, 2 ran, 1 failed, 0 interrupted"), summary
+        assert result.stdout.rstrip().splitlines()[-1] == summary
+        assert "failed: RuntimeError: a cell that breaks" in said
+    else:  # it stops at the second cell, says what it did, then how to resume
+        assert summary.endswith("0 skipped, 0 resumed, 1 ran, 0 failed, 1 interrupted"), summary
+        assert said.rstrip().splitlines()[-1].startswith("interrupted: run the same command")
 
 
 @pytest.mark.parametrize(

@@ -112,19 +112,55 @@ REFUSED = {
         (*TINY_KTH, "representation.beta=1e10"),
         "expected at most 16",
     ),
+    # sizes past any machine's memory (case 4's class: every setting that sizes an array)
+    "a frame size past memory": (
+        (*TINY_KTH, "task.resize=[1000000,1000000]"),
+        "task.resize=[1000000, 1000000], task.frames=8: a clip's 8 decoded frames",
+    ),
+    "a batch past memory": (
+        (*TINY_KTH, "task.batch_size=1000000000"),
+        "task.batch_size=1000000000, task.frames=8, task.crop=24: a batch",
+    ),
+    "a generated video past memory": (
+        (*TINY_KTH, "+task.synthetic.height=1000000000"),
+        "task.synthetic.frames=16, task.synthetic.height=1000000000, task.synthetic.width=160: "
+        "a generated video of 16 frames",
+    ),
+    "a demo clip past memory": (
+        ("task=representation_demo", "debug=tiny", "task.height=10000000", "task.width=10000000"),
+        "task.frames=8, task.height=10000000, task.width=10000000: a clip of 8 frames",
+    ),
+    "an event_camera clip past memory": (
+        ("task=event_camera", "debug=tiny", "task.frames=100000000000"),
+        "task.frames=100000000000, task.height=48, task.width=64: a clip",
+    ),
+    "DVS transfer's frame size past memory": (
+        ("task=dvs_transfer", "debug=tiny", "task.pretrain.resize=[1000000,1000000]"),
+        "task.pretrain.resize=[1000000, 1000000], task.pretrain.frames=8",
+    ),
+    "Atari envs past memory": (
+        ("task=atari", "debug=tiny", "task.env.num_envs=100000000"),
+        "task.env.num_envs=100000000, task.loss.rollout_steps=5, task.env.frame_stack=4: the 9",
+    ),
+    "Atari evaluation games past memory": (
+        ("task=atari", "debug=tiny", "task.evaluation.plays=100000000"),
+        "task.evaluation.plays=100000000, task.env.frame_stack=4: one step's input",
+    ),
+    "an output folder with no room for its files": (
+        (*TINY_KTH, f"out_dir=/tmp/{'/'.join(['d' * 200] * 19)}"),
+        "(room for 2 levels of names under it)",
+    ),
 }
+CACHE_KEY = {"task=kth": "task.cache_dir", "task=dvs_transfer": "task.pretrain.cache_dir"}
 
 
 @pytest.mark.parametrize("case", REFUSED, ids=list(REFUSED))
 def test_a_bad_value_is_refused_in_one_line_before_work(compose_config, tmp_path, cache, case):
     overrides, message = REFUSED[case]
-    cache_dir = () if "cache_dir" in " ".join(overrides) else (f"task.cache_dir={cache}",)
-    if overrides[0] == "task=event_camera":
-        cache_dir = ()
-    if overrides[0] == "task=dvs_transfer":
-        cache_dir = (f"task.pretrain.cache_dir={cache}",)
+    key = CACHE_KEY.get(overrides[0])
+    cache_dir = (f"{key}={cache}",) if key and "cache_dir" not in " ".join(overrides) else ()
     with pytest.raises(ConfigError) as refused:
-        run(compose_config(*overrides, *cache_dir, f"out_dir={tmp_path}"))
+        run(compose_config(f"out_dir={tmp_path}", *overrides, *cache_dir))
     assert message in str(refused.value) and "\n" not in str(refused.value)
     assert not (tmp_path / "checkpoint.pt").exists() and not (tmp_path / "pretrain").exists()
 
@@ -220,8 +256,26 @@ def _empty_action(root: Path) -> Path:
     return root / "running"
 
 
+def _converted(root: Path) -> Path:
+    """A video converted to another container: not read, so its class would silently shrink."""
+    video = _boxing(root)
+    return video.rename(video.with_suffix(".mp4"))
+
+
+def _notes(root: Path) -> Path:
+    (notes := root / "walking" / "notes.txt").write_text("person 3 left early\n")
+    return notes
+
+
+def _subfolder(root: Path) -> Path:
+    (extra := root / "jogging" / "more").mkdir()
+    return extra
+
+
 BAD_KTH = {"zero-byte video": _zero_bytes, "symlink loop": _symlink_loop,
-           "stray file name": _stray_name, "empty action folder": _empty_action}  # fmt: skip
+           "stray file name": _stray_name, "empty action folder": _empty_action,
+           "a video as .mp4": _converted, "a text file": _notes,
+           "a folder in an action folder": _subfolder}  # fmt: skip
 
 
 @pytest.mark.parametrize("spoil", BAD_KTH.values(), ids=list(BAD_KTH))
@@ -230,6 +284,27 @@ def test_a_bad_kth_file_is_one_line_naming_it(kth_copy, spoil) -> None:
     with pytest.raises(ConfigError) as refused:
         kth(kth_copy)
     assert str(bad) in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_hidden_files_in_a_kth_folder_are_not_videos(kth_copy, kth_root) -> None:
+    (kth_copy / "boxing" / ".DS_Store").write_bytes(b"\0\1")  # what a desktop leaves behind
+    (kth_copy / "boxing" / "._person01_boxing_d1_uncomp.avi").write_bytes(b"\0")
+    names = [(v.path.name, v.label) for v in kth(kth_copy).videos]
+    assert names == [(v.path.name, v.label) for v in kth(kth_root).videos]
+
+
+@pytest.mark.parametrize("protocol", ["time", "official"])
+def test_a_stray_file_in_a_ucf_class_folder_is_named(tmp_path, protocol) -> None:
+    """Split in time, every file of a class folder is one of its videos; the official split
+    reads the files its lists name, and nothing else."""
+    root = _ucf(tmp_path / "UCF-101", "1 Foo\n", "Foo/v_Foo_g01_c01.avi 1\n",
+                ["Foo/v_Foo_g01_c01.avi"])  # fmt: skip
+    (root / "Foo" / "v_Foo_g02_c01.mp4").write_bytes(b"\0" * 64)
+    if protocol == "official":
+        assert len(ucf101(root, train=True)) == 1
+        return
+    with pytest.raises(ConfigError, match=r"v_Foo_g02_c01\.mp4: not a video of the layout"):
+        ucf101(root, train=True, protocol="time")
 
 
 @pytest.mark.parametrize("content", [b"", b"this is not a video\n" * 50], ids=["empty", "text"])

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -78,18 +79,16 @@ def test_an_interrupt_dropped_in_a_callback_stops_at_the_next_step(
     assert not [p.name for p in out.rglob("*partial*")]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize(("sent", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_the_first_signal_stops_a_long_epoch_within_seconds(sent, status, tmp_path) -> None:
-    """An epoch far longer than the test's patience (a million clips), with outputs big enough to
-    be recycled: the first signal ends it within 10 s, a second one adds no traceback, and the
-    record says interrupted, with nothing to resume from but a start over."""
-    out = tmp_path / "run"
+def _interrupt_twice(
+    argv: list[str], tmp_path: Path, sent: int, ready: Callable[[list[str]], bool]
+) -> tuple[str, int]:
+    """``edr-run argv`` as from a terminal, sent ``sent`` once ``ready(output lines)``, then
+    again half a second later (an impatient user); (its output, its exit status). Fails the
+    test unless it ends within 10 s of the first signal."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "EDR_CACHE": str(tmp_path / "cache")}
     process = subprocess.Popen(
-        [EDR_RUN, "task=kth", "debug=tiny", "task.frames=16", "task.batch_size=64",
-         "task.clips_per_epoch=1000000", f"hydra.run.dir={out}"],
-        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        [EDR_RUN, *argv], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as in a terminal
     )  # fmt: skip
     output: list[str] = []
@@ -97,11 +96,10 @@ def test_the_first_signal_stops_a_long_epoch_within_seconds(sent, status, tmp_pa
         target=lambda: output.extend(iter(process.stdout.readline, "")), daemon=True
     ).start()
     deadline = time.monotonic() + 300
-    while not any("epoch 1/2" in line for line in output):
+    while not ready(output):
         assert process.poll() is None, "".join(output)[-3000:]
         assert time.monotonic() < deadline, "training never started"
         time.sleep(0.1)
-    time.sleep(3)  # inside the epoch's first batches
     process.send_signal(sent)
     sent_at = time.monotonic()
     time.sleep(0.5)
@@ -110,15 +108,64 @@ def test_the_first_signal_stops_a_long_epoch_within_seconds(sent, status, tmp_pa
     process.wait(timeout=60)
     assert time.monotonic() - sent_at < 10, "the run did not stop within 10 s"
     time.sleep(0.2)  # the reader's last lines
-    text = "".join(output).replace("\r", "\n")
+    return "".join(output).replace("\r", "\n"), process.returncode
+
+
+def _ended_in_one_line(text: str, returncode: int, status: int) -> None:
     # 130 / 143; or killed by the second signal once Python, shutting down, restored its default
-    assert process.returncode in (status, 128 - status), text[-3000:]
+    assert returncode in (status, 128 - status), text[-3000:]
     assert "Traceback" not in text and "Exception ignored" not in text, text[-3000:]
     assert text.rstrip().splitlines()[-1].startswith("interrupted: run the same command again")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("sent", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_the_first_signal_stops_a_long_epoch_within_seconds(sent, status, tmp_path) -> None:
+    """An epoch far longer than the test's patience (a million clips), with outputs big enough to
+    be recycled: the first signal ends it within 10 s, a second one adds no traceback, and the
+    record says interrupted, with nothing to resume from but a start over."""
+    out = tmp_path / "run"
+    argv = ["task=kth", "debug=tiny", "task.frames=16", "task.batch_size=64",
+            "task.clips_per_epoch=1000000", f"hydra.run.dir={out}"]  # fmt: skip
+
+    def inside_the_first_epoch(output: list[str]) -> bool:
+        if not any("epoch 1/2" in line for line in output):
+            return False
+        time.sleep(3)  # inside the epoch's first batches
+        return True
+
+    _ended_in_one_line(*_interrupt_twice(argv, tmp_path, sent, inside_the_first_epoch), status)
     record = json.loads((out / "run.json").read_text())
     assert record["status"] == "failed" and record["error"] == "interrupted"
     assert record["resumes_from"] is None  # no epoch finished: the next attempt starts over
     assert not (out / "run.lock").exists()
+
+
+TRAINING = {  # tiny runs with budgets no test waits for, and the counter of their checkpoints
+    "kth": (["task=kth", "debug=tiny", "task.epochs=100000"], "epoch"),
+    "atari": (["task=atari", "debug=tiny", "representation.color=gray", "task.env_steps=10000000",
+               "task.optim.lr_decay_env_steps=10000000"], "env_steps"),
+}  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", list(TRAINING))
+def test_ctrl_c_stops_training_with_one_line_and_its_checkpoint(task, tmp_path) -> None:
+    """Ctrl-C once a checkpoint is written (recognition: an epoch's end; Atari: every 50
+    updates, and on the interrupt itself): one line, no traceback after a second Ctrl-C, and
+    a record that says interrupted and what the next attempt continues from."""
+    argv, counter = TRAINING[task]
+    out = tmp_path / "run"
+    text, returncode = _interrupt_twice(
+        [*argv, f"hydra.run.dir={out}"], tmp_path, signal.SIGINT,
+        lambda output: (out / "checkpoint.pt").exists(),
+    )  # fmt: skip
+    _ended_in_one_line(text, returncode, 130)
+    record = json.loads((out / "run.json").read_text())
+    assert record["status"] == "failed" and record["error"] == "interrupted"
+    assert record["resumes_from"]["checkpoint"] == "checkpoint.pt"
+    assert record["resumes_from"][counter] >= 1
+    assert (out / "checkpoint.pt").is_file() and not (out / "run.lock").exists()
 
 
 # ---- 3. make demo: one seed, said so ---------------------------------------------------------

@@ -81,6 +81,7 @@ def test_ctrl_c_or_sigterm_ends_with_one_line_saying_how_to_resume(sent, status,
     assert process.returncode == status
     assert "Traceback" not in output
     assert output.rstrip().splitlines()[-1].startswith("interrupted: run the same command again")
+    assert f"sweep {sweep}: 0 skipped, 0 resumed, 0 ran, 0 failed, 1 interrupted" in output
     record = json.loads((sweep / FIRST / "run.json").read_text())
     assert record["status"] == "failed" and record["error"] == "interrupted"
 

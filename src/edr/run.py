@@ -44,8 +44,16 @@ from edr.records import (
     write_record,
 )
 from edr.report.published import load_published, lookup
-from edr.store import Resume, hold_folder, log_attempt, plan_attempt, refused_cells
-from edr.validate import ConfigError, Seed, Threads, check_config
+from edr.store import (
+    FOLDER_ROOM,
+    Resume,
+    SweepSummary,
+    hold_folder,
+    log_attempt,
+    plan_attempt,
+    refused_cells,
+)
+from edr.validate import ConfigError, Seed, Threads, check_config, path_problem
 
 # The entry point's own keys, checked like a task's arguments.
 INTERNAL_GROUPS = {"hydra", "recognition", "paths"}  # composed by the configs, not picked by users
@@ -98,6 +106,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     """
     check_config(cfg, entry=ENTRY_KEYS)
     out_dir = Path(cfg.out_dir)
+    if problem := path_problem(out_dir, below=FOLDER_ROOM["run"]):
+        raise ConfigError(f"out_dir={out_dir}: expected {problem}")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -287,7 +297,7 @@ def hydra_app(cfg: DictConfig) -> None:
 def cli() -> None:
     """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
     of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
-    (:mod:`edr.interrupts`)."""
+    (:mod:`edr.interrupts`); a sweep says its summary line before it."""
     interrupts.install()
     try:
         main()
@@ -302,6 +312,7 @@ def cli() -> None:
         )
         raise SystemExit(2) from None
     except KeyboardInterrupt as error:
+        SweepSummary.interrupted()  # a sweep's line comes, whatever stopped it
         print(
             "\ninterrupted: run the same command again to resume "
             "(finished runs are skipped, interrupted ones continue from their checkpoints)",

@@ -42,11 +42,14 @@ from edr.identity import (
     warn_ignored,
 )
 from edr.records import RECORD_NAME, now, read_record
-from edr.validate import ConfigError
+from edr.validate import ConfigError, path_problem
 
 ATTEMPTS = "attempts.jsonl"
 LOCK = "run.lock"  # held while a process writes the folder: {"host", "pid", "since"}
 Resume = Literal["auto", True, False]
+# Levels of names a run writes under its folder (.hydra/config.yaml, pretrain/checkpoint.pt),
+# and a sweep under its own (a cell's folder, then those).
+FOLDER_ROOM = {"run": 2, "sweep": 3}
 # Budgets a run may be raised to and continued: the training up to the old budget does not
 # depend on them (Atari's learning rate follows task.optim.lr_decay_env_steps, not
 # task.env_steps).
@@ -263,7 +266,8 @@ def _run_each_folder_once(config: DictConfig) -> None:
 
 class RunFolder(Callback):
     """Before Hydra makes a run's (or a sweep's) folder: one that cannot be made (a read-only
-    disk, a file in its way) is refused in one line, exit 2, instead of Hydra's traceback."""
+    disk, a file in its way) or whose path leaves no room for the files a run writes in it is
+    refused in one line, exit 2, instead of Hydra's traceback."""
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._make(config, "run")
@@ -275,6 +279,10 @@ class RunFolder(Callback):
     def _make(config: DictConfig, kind: Literal["run", "sweep"]) -> None:
         HydraConfig.instance().set_config(config)  # the folder's name reads hydra:runtime
         folder = Path(config.hydra[kind].dir)
+        if problem := path_problem(folder, below=FOLDER_ROOM[kind]):
+            shown = str(folder) if len(str(folder)) < 120 else f"{str(folder)[:100]}..."
+            print(f"edr-run: hydra.{kind}.dir={shown}: expected {problem}", file=sys.stderr)
+            raise SystemExit(2)
         try:
             folder.mkdir(parents=True, exist_ok=True)
             if not os.access(folder, os.W_OK):  # there, but not this user's to write
@@ -295,19 +303,35 @@ refused_cells: list[str] = []
 
 class SweepSummary(Callback):
     """At the end of a multirun, one line: how many cells were skipped, resumed, run, failed,
-    interrupted or refused; exit status 1 when any failed or was refused."""
+    interrupted or refused; exit status 1 when any failed or was refused. A sweep that Ctrl-C
+    or SIGTERM stops gets its line too (:meth:`interrupted`), from the entry point."""
+
+    under_way: SweepSummary | None = None  # the sweep this process runs, until its line is said
+    started = 0.0  # when it started: the attempts it counts are the later ones
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        self.started = time.time()
+        self.started, self.sweep_dir = time.time(), Path(config.hydra.sweep.dir)
+        SweepSummary.under_way = self
         warn_ignored(config, config.hydra.overrides.task)
         _run_each_folder_once(config)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        sweep_dir = Path(config.hydra.sweep.dir)
-        counts = outcomes_since(sweep_dir, getattr(self, "started", 0.0))
+        self.sweep_dir = Path(config.hydra.sweep.dir)
+        if self._say():
+            raise SystemExit(1)
+
+    @classmethod
+    def interrupted(cls) -> None:
+        """The summary line of the sweep a signal stopped, if one was under way."""
+        if cls.under_way is not None:
+            cls.under_way._say()
+
+    def _say(self) -> bool:
+        """Log the summary line (once); whether a cell failed or was refused."""
+        SweepSummary.under_way = None
+        counts = outcomes_since(self.sweep_dir, self.started)
         counts["refused"] = len(refused_cells)
         order = ("skipped", "resumed", "ran", "failed", "interrupted", "refused")
         shown = [k for k in order if k != "refused" or counts[k]]
-        log.info("sweep %s: %s", sweep_dir, ", ".join(f"{counts.get(k, 0)} {k}" for k in shown))
-        if counts["failed"] or counts["refused"]:
-            raise SystemExit(1)
+        log.info("sweep %s: %s", self.sweep_dir, ", ".join(f"{counts[k]} {k}" for k in shown))
+        return bool(counts["failed"] or counts["refused"])

@@ -77,12 +77,19 @@ ModuleName = Annotated[str, Check(_module_problem)]  # importable (not imported 
 Seed = Annotated[int, Range(0, 2**32 - 1)]  # what numpy's and torch's generators take
 
 
-def _path_problem(path: Any) -> str | None:
-    """What the OS refuses before any file is touched: a path or a name in it too long."""
-    text = os.fsencode(os.path.expanduser(str(path)))
+def path_problem(path: Any, below: int = 0) -> str | None:
+    """What the OS refuses before any file is touched: a path or a name in it too long; with
+    ``below``, a folder leaving too little room for that many levels of names under it (what
+    a run writes into it: ``pretrain/checkpoint.pt``), each as long as the OS allows."""
+    text = os.fsencode(os.path.abspath(os.path.expanduser(str(path))))  # as the OS sees it
     name_max, path_max = _path_limits()
-    if len(text) >= path_max:
-        return f"a path shorter than {path_max} bytes (this one has {len(text)})"
+    room = below * (name_max + 1)
+    if len(text) + room >= path_max:
+        return (
+            f"a path shorter than {path_max - room} bytes"
+            + (f" (room for {below} levels of names under it)" if below else "")
+            + f"; this one has {len(text)}"
+        )
     longest = max(text.split(b"/"), key=len)
     if len(longest) > name_max:
         return (
@@ -103,7 +110,7 @@ def _path_limits() -> tuple[int, int]:
 def _data_root_problem(path: Any) -> str | None:
     if path == "":
         return "a folder (an empty path is not a data set; null generates one)"
-    return _path_problem(path)
+    return path_problem(path)
 
 
 def _existing_dir_problem(path: Any) -> str | None:
@@ -113,12 +120,13 @@ def _existing_dir_problem(path: Any) -> str | None:
 
 
 def _existing_file_problem(path: Any) -> str | None:
-    return _path_problem(path) or (
+    return path_problem(path) or (
         None if Path(str(path)).expanduser().is_file() else "an existing file"
     )
 
 
-FilePath = Annotated[str, Check(_path_problem)]  # a file or folder a task reads or writes
+# A folder a run writes into, with room for a subfolder and a file in it (a cache's entries).
+OutputDir = Annotated[str, Check(lambda path: path_problem(path, below=2))]
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
 ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
 ExistingFile = Annotated[str, Check(_existing_file_problem)]  # a file a task reads
@@ -176,6 +184,38 @@ def _threads_problem(threads: Any) -> str | None:
 
 
 Threads = Annotated[int, Range(1), Check(_threads_problem)]
+
+
+# Where Linux states a container's memory limit (cgroup v2, then v1).
+CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes")
+
+
+def memory_bytes() -> int:
+    """The memory this process may use, in bytes: the machine's, or its container's limit."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):  # not POSIX: nothing to compare against
+        total = 2**63
+    for limit in CGROUP_LIMITS:
+        try:
+            text = Path(limit).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit():  # "max": no limit
+            total = min(total, int(text))
+    return total
+
+
+def check_memory(settings: str, what: str, nbytes: float) -> None:
+    """:class:`ConfigError` when ``what``, one array a run must hold and whose size ``settings``
+    set, is larger than this machine's memory: refused before any work, not killed by the OS
+    (or a machine swapping) part way. Callers pass a lower bound, so nothing that fits is refused."""
+    total = memory_bytes()
+    if nbytes > total:
+        raise ConfigError(
+            f"{settings}: {what} would take {nbytes / 2**30:,.1f} GiB, more than this machine's "
+            f"{total / 2**30:,.1f} GiB of memory: use smaller values"
+        )
 
 
 def _non_empty_problem(values: Any) -> str | None:

@@ -20,7 +20,9 @@ UCF-101 then needs no ``ucfTrainTestlist/``, only ``<root>/<ClassName>/*.avi``.
 
 from __future__ import annotations
 
+import inspect
 import logging
+import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -33,7 +35,7 @@ from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
 from edr.data.video import UnreadableVideo, check_video_file
 from edr.identity import digest
-from edr.validate import ConfigError, Fraction, OpenFraction
+from edr.validate import ConfigError, Fraction, OpenFraction, check_memory
 
 UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "
@@ -112,6 +114,13 @@ def _checked_video(path: Path, where: str) -> Path:
         return check_video_file(path)
     except UnreadableVideo as error:
         raise DataLayoutError(f"{where}: {error}") from None
+
+
+def _visible(folder: Path) -> list[Path]:
+    """What ``folder`` holds, sorted, but hidden names (``.DS_Store``, an editor's swap file):
+    a class folder's every other entry is one of its videos, or refused by name, never skipped
+    unsaid (a video converted to .mp4 would leave its class silently smaller)."""
+    return sorted(p for p in folder.iterdir() if not p.name.startswith("."))
 
 
 def _class_index(class_file: Path) -> dict[str, int]:
@@ -198,15 +207,20 @@ def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
     folders = sorted(d for d in root.iterdir() if d.is_dir() and any(d.glob("*.avi")))
     if not folders:
         raise _missing(root, "class folders with .avi files", "<root>/<ClassName>/*.avi")
-    videos = [
-        Video(
-            _checked_video(path, str(folder)),
-            label,
-            group.group(1) if (group := UCF_GROUP.search(path.name)) else path.stem,
-        )
-        for label, folder in enumerate(folders)
-        for path in sorted(folder.glob("*.avi"))
-    ]
+    videos = []
+    for label, folder in enumerate(folders):
+        for path in _visible(folder):
+            if path.suffix != ".avi":
+                raise DataLayoutError(
+                    f"{path}: not a video of the layout <root>/<ClassName>/*.avi: rename, "
+                    "convert or remove it"
+                )
+            group = UCF_GROUP.search(path.name)
+            videos.append(
+                Video(
+                    _checked_video(path, str(folder)), label, group.group(1) if group else path.stem
+                )
+            )
     return VideoSet(tuple(videos), tuple(d.name for d in folders), time_split=time_split)
 
 
@@ -229,8 +243,8 @@ def kth(
         raise _missing(root, f"action folders {absent}", KTH_LAYOUT)
     videos = []
     for label, action in enumerate(KTH_ACTIONS):
-        found = sorted((root / action).glob("*.avi"))
-        if not found:
+        found = _visible(root / action)
+        if not any(p.suffix == ".avi" for p in found):
             raise DataLayoutError(
                 f"{root / action} holds no .avi video: every action needs videos ({KTH_LAYOUT})"
             )
@@ -238,7 +252,8 @@ def kth(
             match = KTH_NAME.search(path.name)
             if match is None or match.group(2) != action:
                 raise DataLayoutError(
-                    f"{path}: not a KTH file name ({KTH_LAYOUT}): rename or remove it"
+                    f"{path}: not a KTH video file name ({KTH_LAYOUT}): rename, convert or "
+                    "remove it"
                 )
             videos.append(Video(_checked_video(path, str(root / action)), label, match.group(1)))
     if protocol == "time":
@@ -267,13 +282,24 @@ def kth(
 
 
 def resolve_root(
-    data_root: str | None, synthetic: Callable[..., Path], cache_dir: str | Path
+    data_root: str | None,
+    synthetic: Callable[..., Path],
+    cache_dir: str | Path,
+    where: str = "task",
 ) -> Path:
     """``data_root`` when given; else the data set ``synthetic`` (a partial of one of the writers
     of ``edr.data.synthetic`` or ``edr.data.from_videos``) writes once under ``cache_dir``, named
-    by its settings."""
+    by its settings, once a video of its size is known to fit in memory (each is made whole;
+    ``where``: the config's section that holds ``synthetic``)."""
     if data_root:
         return Path(data_root)
+    size = {k: p.default for k, p in inspect.signature(synthetic).parameters.items()
+            if k in ("frames", "height", "width")}  # fmt: skip
+    check_memory(
+        ", ".join(f"{where}.synthetic.{k}={v}" for k, v in size.items()),
+        f"a generated video of {size['frames']} frames at {size['width']}x{size['height']}",
+        math.prod(size.values()),
+    )
     settings = {"fn": synthetic.func.__name__, **synthetic.keywords}
     root = Path(cache_dir).resolve() / f"{synthetic.func.__name__}_{digest(settings, 10)}"
     if not root.exists():

@@ -13,7 +13,7 @@ import torch
 from edr.atomic import publish_dir
 from edr.data.fingerprint import files_fingerprint
 from edr.data.video import read_video, write_video
-from edr.validate import PositiveInt, Range
+from edr.validate import PositiveInt, Range, check_memory
 
 FrameSide = Annotated[int, Range(16)]  # a frame's side: the generated scene draws at least 16
 
@@ -63,6 +63,11 @@ def video_or_scene(
 ) -> tuple[torch.Tensor, dict[str, Any]]:
     """(clip (T, 3, H, W) uint8, its ``data/*`` entries for the run record): ``video`` read and
     resized to ``width`` x ``height``, or, without one, the generated scene drawn from ``seed``."""
+    check_memory(
+        f"task.frames={frames}, task.height={height}, task.width={width}",
+        f"{'a frame' if video else f'a clip of {frames} frames'} at {width}x{height} (RGB, uint8)",
+        (1 if video else frames) * 3 * height * width,  # a video may hold fewer than ``frames``
+    )  # fmt: skip
     if video:
         clip = read_video(video, max_frames=frames, size=(width, height))
         label, fingerprint = str(video), files_fingerprint([Path(video)], Path(video).parent)

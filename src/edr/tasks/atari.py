@@ -56,7 +56,7 @@ from edr.rl.settings import (
 from edr.rl.transform import ObservationFrame
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import LoggerName, open_logger
-from edr.validate import ConfigError, PositiveInt
+from edr.validate import ConfigError, PositiveInt, check_memory
 
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # a row per log_every updates: env steps, losses, fps, training score
@@ -96,7 +96,8 @@ def train_paac(
     _check_env(env, network)
     backend = env.resolved_backend()
     env_kwargs = _env_kwargs(env)
-    net, arguments = _network(env_kwargs, network, env.frame_stack)
+    net, arguments, observation = _network(env_kwargs, network, env.frame_stack)
+    _check_memory(env, loss.rollout_steps, evaluation.plays, observation)
     clock = PhaseClock()  # where each update's time goes, into the history
     envs = _training_envs(env, loss, env_kwargs, backend, seed, clock)
     learner = Learner(net, loss, optim, env.num_envs * loss.rollout_steps, clock)
@@ -318,6 +319,24 @@ def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
         )
 
 
+def _check_memory(
+    env: EnvSettings, rollout_steps: int, plays: int, observation: tuple[int, ...]
+) -> None:
+    """Refuse env counts whose observations cannot fit in memory: the frames the training envs
+    hold at once, and one step's stacked input of the evaluation games (one env per game)."""
+    frame = int(np.prod(observation)) * (2 if env.obs_dtype == "float16" else 4)  # bytes
+    held = observations_held(rollout_steps, env.frame_stack)
+    check_memory(
+        f"task.env.num_envs={env.num_envs}, task.loss.rollout_steps={rollout_steps}, "
+        f"task.env.frame_stack={env.frame_stack}",
+        f"the {held} observations each of the {env.num_envs} envs holds", env.num_envs * held * frame,
+    )  # fmt: skip
+    check_memory(
+        f"task.evaluation.plays={plays}, task.env.frame_stack={env.frame_stack}",
+        f"one step's input of {plays} games played at once", plays * env.frame_stack * frame,
+    )  # fmt: skip
+
+
 def _history_row(
     env_steps: int, fps: float, window: list[dict[str, float]], recent: deque[float]
 ) -> dict[str, float]:
@@ -347,10 +366,12 @@ def _env_kwargs(env: EnvSettings) -> dict[str, Any]:
 
 def _network(
     env_kwargs: dict[str, Any], network: NetworkSettings, frame_stack: int
-) -> tuple[PAACNetwork, dict[str, Any]]:
-    """A fresh network for ``frame_stack`` frames of these envs and their actions; its arguments."""
+) -> tuple[PAACNetwork, dict[str, Any], tuple[int, ...]]:
+    """A fresh network for ``frame_stack`` frames of these envs and their actions; its
+    arguments; one observation's shape (C, H, W)."""
     probe = make_atari_env(backend="single", **env_kwargs)
-    channels, actions = probe.observation_spec["observation"].shape[-3], probe.action_spec.shape[-1]
+    observation = tuple(probe.observation_spec["observation"].shape[-3:])  # (C, H, W)
+    channels, actions = observation[0], probe.action_spec.shape[-1]
     probe.close()
     arguments = {
         "in_channels": frame_stack * channels,
@@ -360,7 +381,7 @@ def _network(
         "input_norm": network.input_norm,
         "frames": frame_stack,
     }
-    return PAACNetwork(**arguments), arguments
+    return PAACNetwork(**arguments), arguments, observation
 
 
 def _evaluate(
@@ -440,7 +461,7 @@ def evaluate_checkpoint(
         )
     evaluation = task["evaluation"]
     env_kwargs = _env_kwargs(env)
-    network, _ = _network(env_kwargs, task["network"], env.frame_stack)
+    network, _, _ = _network(env_kwargs, task["network"], env.frame_stack)
     state = load_checkpoint(run_dir / CHECKPOINT)
     network.load_state_dict(state["network"])
     if plays is not None:

@@ -30,7 +30,7 @@ from edr.models.divergence import divergence
 from edr.representations import EDR, DVSSimulator, events_to_frames
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
-from edr.tasks.recognition import CONFUSION, Fitted
+from edr.tasks.recognition import CONFUSION, Fitted, check_decoded_memory
 from edr.validate import (
     ConfigError,
     ExistingDir,
@@ -231,7 +231,8 @@ def dvs_transfer(
     kth = kth_settings(pretrain)
     videos: Callable[..., VideoSet] = kth["videos"]
     frames, crop, cache_dir = kth["frames"], kth["crop"], kth["cache_dir"]
-    root = resolve_root(kth["data_root"], kth["synthetic"], cache_dir)
+    check_decoded_memory(kth["resize"], frames, 1, "task.pretrain")  # the simulator's, gray
+    root = resolve_root(kth["data_root"], kth["synthetic"], cache_dir, "task.pretrain")
     classes = videos(root, train=True).classes
     if dvs_root:
         source_name = f"recordings under {dvs_root}"

@@ -48,12 +48,13 @@ from edr.validate import (
     ConfigError,
     DataRoot,
     Device,
-    FilePath,
     Fraction,
     NonEmpty,
     NonNegativeInt,
+    OutputDir,
     PositiveFloat,
     PositiveInt,
+    check_memory,
     torch_device,
 )
 
@@ -117,7 +118,7 @@ def fit_recognition(
     videos: Callable[..., VideoSet],
     synthetic: Callable[..., Path],
     data_root: DataRoot | None = None,
-    cache_dir: FilePath = "results/cache",
+    cache_dir: OutputDir = "results/cache",
     resize: tuple[PositiveInt, PositiveInt] = (89, 67),
     gray: bool = False,
     max_frames: PositiveInt | None = None,
@@ -143,7 +144,7 @@ def fit_recognition(
     representation; after a precomputed one), a control for what appearance alone can do.
     ``normalize_input``: each channel of the backbone's input standardised
     (:func:`edr.models.input_norm`), whatever the representation."""
-    _check_sizes(crop, resize, frames, representation)
+    _check_sizes(crop, resize, frames, batch_size, 1 if gray else 3, representation)
     dev = torch_device(device)
     data = _Data.find(data_root, synthetic, cache_dir, videos)
     checkpoint = out_dir / CHECKPOINT
@@ -304,15 +305,25 @@ def _finish(
 
 
 def _check_sizes(
-    crop: int, resize: Sequence[int], frames: int, representation: Representation
-) -> None:
-    """One line for a crop larger than the frames, or clips too short for the representation."""
+    crop: int, resize: Sequence[int], frames: int, batch_size: int, channels: int,
+    representation: Representation,
+) -> None:  # fmt: skip
+    """One line for a crop larger than the frames, clips too short for the representation, or
+    sizes whose clips or batches cannot fit in memory."""
     if crop > min(resize):
         raise ConfigError(
             f"task.crop={crop}: expected at most the frames' short side, {min(resize)} "
             f"(task.resize={list(resize)}): a crop is cut from a frame, then resized"
         )
     check_enough_frames(frames, {"the representation": representation})
+    check_decoded_memory(resize, frames, channels)
+    in_frames = frames if representation.precompute else representation.out_frames(frames)
+    check_memory(
+        f"task.batch_size={batch_size}, task.frames={frames}, task.crop={crop}",
+        f"a batch of the backbone's input ({batch_size} clips of {in_frames} frames at "
+        f"{crop}x{crop}, float32)",
+        batch_size * in_frames * representation.out_channels(channels) * crop * crop * 4,
+    )
 
 
 def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
@@ -393,6 +404,19 @@ def _train_epoch(
     if edr_grad_norms:
         row["edr/grad_norm"] = float(np.mean(edr_grad_norms))  # mean over the epoch's steps
     return row, {}
+
+
+def check_decoded_memory(
+    resize: Sequence[int], frames: int, channels: int, where: str = "task"
+) -> None:
+    """Refuse a frame size whose clip cannot fit in memory: a clip's ``frames`` decoded frames
+    at ``resize``, held whole (or padded to ``frames`` from a shorter video); ``where``: the
+    settings' section in the config."""
+    width, height = resize
+    check_memory(
+        f"{where}.resize={list(resize)}, {where}.frames={frames}",
+        f"a clip's {frames} decoded frames at {width}x{height}", frames * channels * width * height,
+    )  # fmt: skip
 
 
 def data_labels(
