@@ -21,6 +21,7 @@ from edr.data.events import (
     write_recording,
 )
 from edr.representations.dvs import EVENT_DTYPE
+from edr.validate import ConfigError
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "events"
 
@@ -235,11 +236,16 @@ def test_a_folder_of_recordings_in_any_format(tmp_path) -> None:
     for action, suffix in (("boxing", ".aedat"), ("walking", ".npz")):
         (tmp_path / action).mkdir()
         write_recording(tmp_path / action / f"user1{suffix}", _events(5, 128, 128), (128, 128))
-    (tmp_path / "walking" / "notes.txt").write_text("not a recording")
+    (tmp_path / "walking" / ".DS_Store").write_text("hidden: skipped")
     assert list_recordings(tmp_path, ("boxing", "walking")) == [
         (tmp_path / "boxing" / "user1.aedat", 0),
         (tmp_path / "walking" / "user1.npz", 1),
     ]
+    for stray in ("notes.txt", "user2.mp4"):  # never skipped unsaid: one line naming it
+        (tmp_path / "walking" / stray).write_text("not a recording")
+        with pytest.raises(ConfigError, match=f"walking/{stray}: not an event recording"):
+            list_recordings(tmp_path, ("boxing", "walking"))
+        (tmp_path / "walking" / stray).unlink()
 
 
 def test_a_recordings_rates_in_both_bit_models(tmp_path) -> None:

@@ -183,12 +183,20 @@ def list_recordings(root: str | Path, classes: tuple[str, ...]) -> list[tuple[Pa
         raise ConfigError(
             f"event recordings not found under {root}; expected <root>/<action>/<recording>"
         )
-    found = [
-        (f, label)
-        for label, name in enumerate(classes)
-        for f in sorted((root / name).glob("*"))
-        if f.suffix.lower() in RECORDING_SUFFIXES and f.is_file()
-    ]
+    found = []
+    for label, name in enumerate(classes):
+        folder = root / name
+        # hidden names (.DS_Store) skipped; any other entry is a recording or refused by name:
+        # a file converted to another format would leave its class silently smaller
+        for f in sorted(folder.glob("*")) if folder.is_dir() else []:
+            if f.name.startswith("."):
+                continue
+            if f.suffix.lower() not in RECORDING_SUFFIXES or not f.is_file():
+                raise ConfigError(
+                    f"{f}: not an event recording ({' '.join(RECORDING_SUFFIXES)}) in the "
+                    "class folder; move it out, or convert it"
+                )
+            found.append((f, label))
     if not found:
         raise ConfigError(
             f"no event recordings ({' '.join(RECORDING_SUFFIXES)}) under {root}/<action>/ "
