@@ -37,14 +37,14 @@ demo: setup
 # Every table regenerates: the tiny sweep of every table (generated data, seconds a run), then
 # every table and figure from those records, into results/paper_tiny (not paper/).
 paper-tiny: setup
-	$(BIN)/python -m edr.sweeps results/sweeps/tiny
+	$(BIN)/python -m edr.studies.tiny_sweeps results/sweeps/tiny
 	$(BIN)/edr-tables --runs results/sweeps/tiny --out results/paper_tiny
 
 # paper/ as committed: edr-tables with no --runs renders the records behind it (edr.tables'
 # COMMITTED_SCOPE: the largest-scale records there are, each folder's command in
 # results/learning/README.md; Table 2 and Figure 3b from the tiny sweeps) and the bench records.
 paper: setup
-	$(BIN)/python -m edr.sweeps results/sweeps/tiny  # skips the cells it ran before
+	$(BIN)/python -m edr.studies.tiny_sweeps results/sweeps/tiny  # skips the cells it ran before
 	$(BIN)/edr-tables
 
 test: setup

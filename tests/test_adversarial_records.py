@@ -18,8 +18,8 @@ import pytest
 
 import edr
 from edr import tables
-from edr.rebuild import UntrustedRecord
 from edr.report.runs import load_runs
+from edr.store.rebuild import UntrustedRecord
 from edr.tasks.atari import evaluate_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -377,7 +377,7 @@ def test_a_folder_with_no_room_for_a_runs_files_is_one_line_before_hydra(
     from hydra import compose, initialize_config_dir
 
     from edr.run import CONF_DIR
-    from edr.store import RunFolder
+    from edr.store.folders import RunFolder
 
     folder = _long_folder(tmp_path, length)
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
@@ -415,7 +415,7 @@ def test_the_last_record_is_written_on_a_disk_that_stays_full(tmp_path) -> None:
     disk.mkdir()
     script = (
         "import json, pathlib, sys\n"
-        "from edr.records import write_last_record, write_record\n"
+        "from edr.store.records import write_last_record, write_record\n"
         f"out = pathlib.Path('{disk}')\n"
         "record = {'status': 'running', 'config': {'x': 'y' * 3000}}\n"
         "write_record(out, record)\n"
@@ -455,8 +455,8 @@ def test_a_folder_of_runs_is_refused_as_a_run_folder(checkpoint, resume, compose
 
 
 def test_a_finished_record_without_metrics_is_one_line(compose_config, tmp_path) -> None:
-    from edr.identity import run_identity
     from edr.run import run
+    from edr.store.identity import run_identity
     from edr.validate import ConfigError
 
     cfg = compose_config("task=kth", "debug=tiny", f"out_dir={tmp_path / 'run'}",
@@ -495,7 +495,7 @@ SWEEP_DRIVER = """
 import os, signal, sys, time
 from pathlib import Path
 import edr.run
-from edr.store import log_attempt
+from edr.store.folders import log_attempt
 
 def cell(cfg):
     out = Path(cfg.out_dir)
@@ -555,7 +555,7 @@ def test_a_sweep_ends_with_its_summary_line_whatever_its_cells_did(end, tmp_path
     ],
 )
 def test_a_checkpoint_evaluation_of_a_malformed_record_is_one_line(text, message, tmp_path):
-    from edr.records import UnreadableRecord
+    from edr.store.records import UnreadableRecord
 
     run_dir = _write(tmp_path / "run", None, text)
     (run_dir / "checkpoint.pt").write_bytes(b"")

@@ -13,13 +13,13 @@ import pytest
 import torch
 
 import edr.tasks.recognition as recognition
-from edr.checkpoints import ChangedData
 from edr.data.datasets import kth, ucf101
 from edr.data.synthetic import write_synthetic_kth
 from edr.data.video import read_video, write_video
 from edr.representations import EDR
 from edr.representations.base import FULL_SCALE
 from edr.run import run
+from edr.store.checkpoints import ChangedData
 from edr.validate import ConfigError
 
 TINY_KTH = ("task=kth", "debug=tiny")

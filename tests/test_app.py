@@ -9,9 +9,10 @@ from pathlib import Path
 import pytest
 from hydra.utils import instantiate
 
-from edr import bench, tables
+from edr import tables
 from edr.representations import Representation
 from edr.run import CONF_DIR, run
+from edr.studies import bench
 
 REPRESENTATIONS = sorted(p.stem for p in (Path(CONF_DIR) / "representation").glob("*.yaml"))
 

@@ -92,7 +92,7 @@ def test_input_normalisation_centres_or_batch_normalises_each_frame(core: str) -
 def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -> None:
     """Runs recorded before task.network.input_norm existed keep their identity; another
     value is another run."""
-    from edr.identity import run_identity
+    from edr.store.identity import run_identity
 
     today = run_identity(compose_config("task=atari"))
     before = run_identity(compose_config("task=atari", "~task.network.input_norm"))
@@ -163,7 +163,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
 
 
 def test_groups_atari_does_not_read_leave_its_fingerprint_alone(compose_config) -> None:
-    from edr.identity import ignored_overrides, run_identity
+    from edr.store.identity import ignored_overrides, run_identity
 
     base = run_identity(compose_config("task=atari"))[1]
     assert run_identity(compose_config("task=atari", "optimizer=adam"))[1] == base

@@ -1,5 +1,5 @@
 """Brox flow (torch): shapes, the sign and size of a known translation, flips, determinism, a
-constant image; and the ground-truth pairs that edr.flow_accuracy scores every flow on."""
+constant image; and the ground-truth pairs that edr.studies.flows scores every flow on."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from edr.flow_accuracy import endpoint_error, pair, sample_image, warp_field
 from edr.representations import BroxFlow, Farneback
+from edr.studies.flows import endpoint_error, pair, sample_image, warp_field
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +86,7 @@ def test_ground_truth_is_the_flow_from_the_first_frame(kind: str) -> None:
 
 
 def test_flow_accuracy_writes_a_record_that_edr_tables_renders(tmp_path) -> None:
-    """``python -m edr.flow_accuracy`` writes a record only; ``edr-tables`` renders it."""
+    """``python -m edr.studies.flows`` writes a record only; ``edr-tables`` renders it."""
     from edr import flow_accuracy, tables
 
     flow_accuracy.main(["--out-dir", str(tmp_path / "bench")])

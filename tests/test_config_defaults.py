@@ -12,8 +12,8 @@ from typing import Any
 from hydra.utils import get_object
 from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 
-from edr.identity import run_identity
 from edr.run import CONF_DIR
+from edr.store.identity import run_identity
 
 # The groups checked, each option composed as edr-run composes it (task=kth with its recognition
 # base, edr_k3 with edr's keys), and the groups left out, with why.

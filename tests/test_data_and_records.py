@@ -7,9 +7,9 @@ import subprocess
 import pytest
 import torch
 
-from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene, write_video
-from edr.records import check_flat, git_revision, read_record, write_record
+from edr.store.atomic import write_json_atomic
+from edr.store.records import check_flat, git_revision, read_record, write_record
 
 
 def test_video_round_trip(tmp_path) -> None:

@@ -114,9 +114,9 @@ def test_learning_recovers_a_half_life_from_a_wrong_start() -> None:
 def test_the_gradient_study_writes_a_record_and_its_table(tmp_path, capsys) -> None:
     import json
 
-    from edr import edr_gradients
+    from edr.studies import edr_stability
 
-    edr_gradients.main(["--seeds", "2", "--steps", "2", "--size", "24", "--out-dir", str(tmp_path)])
+    edr_stability.main(["--seeds", "2", "--steps", "2", "--size", "24", "--out-dir", str(tmp_path)])
     (record,) = tmp_path.glob("edr_gradients_*.json")
     settings = json.loads(record.read_text())["settings"]
     assert [(s["frames"], s["window"], s["parameterization"]) for s in settings] == [
@@ -138,7 +138,7 @@ def test_the_bounded_parameterization_starts_where_the_log_one_does_and_stays_in
     with torch.no_grad():  # pushed far: the bounded values stay in their ranges
         for name in ("tau_logit", "nu_on_logit", "nu_off_logit"):
             getattr(bounded, name).add_(8.0)
-    values = bounded.values()
+    values = bounded.settings_now()
     assert values["edr/tau_0"] <= 64 and 0 < values["edr/nu_off_0"] < 1 and values["edr/beta_0"] > 0
     bounded(clip).sum().backward()
     assert all(torch.isfinite(p.grad).all() for p in bounded.parameters())

@@ -1,5 +1,5 @@
 """Every table and figure regenerates from its tiny sweep: each paper sweep runs once at
-``debug=tiny`` (``edr.sweeps.TINY_SWEEPS``), ``edr-tables`` renders from their records, and each
+``debug=tiny`` (``edr.studies.tiny_sweeps.TINY_SWEEPS``), ``edr-tables`` renders from their records, and each
 table is checked for its rows, columns and labels."""
 
 from __future__ import annotations
@@ -9,11 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from edr import bench, tables
+from edr import tables
 from edr.data.from_videos import sample_videos
 from edr.report.runs import load_runs
 from edr.run import run
-from edr.sweeps import run_tiny_sweeps
+from edr.studies import bench
+from edr.studies.tiny_sweeps import run_tiny_sweeps
 
 
 @pytest.fixture(scope="module")

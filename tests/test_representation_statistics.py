@@ -1,4 +1,4 @@
-"""The distribution of a representation's output per channel (``edr.representation_statistics``)."""
+"""The distribution of a representation's output per channel (``edr.studies.representation_statistics``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from edr.representation_statistics import channel_statistics, clips_of, measure
+from edr.studies.representation_statistics import channel_statistics, clips_of, measure
 
 
 def test_scale_and_sparsity_per_channel() -> None:

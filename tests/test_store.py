@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 import edr.tasks.scalars
-from edr.atomic import atomic_path, publish_dir
 from edr.data.clips import VideoSource
 from edr.data.datasets import DataLayoutError, resolve_root
 from edr.data.synthetic import action_video, write_synthetic_kth
 from edr.data.video import write_video
-from edr.identity import job_dirname, run_identity
 from edr.run import run
+from edr.store.atomic import atomic_path, publish_dir
+from edr.store.identity import job_dirname, run_identity
 from edr.validate import ConfigError
 
 TINY_KTH = ("task=kth", "debug=tiny")
@@ -156,7 +156,7 @@ def test_one_writer_per_run_folder(cli, tmp_path) -> None:
     import sys
     import time
 
-    from edr.store import LOCK
+    from edr.store.folders import LOCK
 
     folder = tmp_path / "run"
     args = [str(Path(sys.executable).parent / "edr-run"), *TINY_KTH, "task.epochs=6",
@@ -238,8 +238,8 @@ def test_a_bad_value_is_one_line_before_any_work(compose_config, overrides, mess
 
 
 def test_corrupt_checkpoint_csv_and_attempts_name_themselves_or_are_survived(tmp_path) -> None:
-    from edr.checkpoints import UnreadableCheckpoint, load_checkpoint
-    from edr.store import log_attempt, outcomes_since
+    from edr.store.checkpoints import UnreadableCheckpoint, load_checkpoint
+    from edr.store.folders import log_attempt, outcomes_since
     from edr.tasks.scalars import rewind_csv_logs
 
     for content in (b"", b"PK\x03\x04 truncated zip"):

@@ -14,8 +14,8 @@ import torch
 from edr.data.clips import ClipDataset, VideoSource
 from edr.data.datasets import TimeSplit, VideoSet, kth, ucf101
 from edr.data.synthetic import KTH_ACTIONS, write_synthetic_kth, write_synthetic_ucf101
-from edr.records import read_record
 from edr.run import run
+from edr.store.records import read_record
 from edr.tasks.recognition import load_model
 from edr.validate import ConfigError
 

@@ -8,8 +8,8 @@ import pickle
 
 import pytest
 
-from edr.rebuild import UntrustedRecord, check_targets
 from edr.run import run
+from edr.store.rebuild import UntrustedRecord, check_targets
 from edr.tasks.atari import evaluate_checkpoint
 from edr.tasks.recognition import load_model
 
@@ -56,7 +56,7 @@ def test_a_sound_record_loads(kth_run) -> None:
         ("representation", {"_target_": "numpy.load", "file": "PICKLE", "allow_pickle": True}),
         ("backbone", {"_target_": "builtins.open", "file": "MARKER", "mode": "w"}),
         ("backbone", {"_target_": "shutil.copyfile", "src": "PICKLE", "dst": "MARKER"}),
-        ("backbone", {"_target_": "edr.atomic.write_text_atomic", "path": "MARKER", "text": "x"}),
+        ("backbone", {"_target_": "edr.store.atomic.write_text_atomic", "path": "MARKER", "text": "x"}),
         ("backbone", {"_target_": "edr.models.LeNet", "_partial_": True,
                       "extra": {"_target_": "os.system", "command": "touch MARKER"}}),
     ],

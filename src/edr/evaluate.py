@@ -7,9 +7,9 @@ import argparse
 import json
 from pathlib import Path
 
-from edr.checkpoints import UnreadableCheckpoint
-from edr.rebuild import UntrustedRecord
-from edr.records import UnreadableRecord
+from edr.store.checkpoints import UnreadableCheckpoint
+from edr.store.rebuild import UntrustedRecord
+from edr.store.records import UnreadableRecord
 
 
 def _parser() -> argparse.ArgumentParser:

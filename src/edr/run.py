@@ -30,21 +30,11 @@ from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from edr import CONF_DIR, interrupts
-from edr.atomic import remove_partial_files
-from edr.checkpoints import UnreadableCheckpoint, WriteStopped, progress
-from edr.identity import job_dirname, run_identity, warn_ignored
 from edr.overrides import check_command_line
-from edr.records import (
-    UnreadableRecord,
-    check_flat,
-    git_revision,
-    machine_info,
-    now,
-    write_last_record,
-    write_record,
-)
 from edr.report.published import load_published, lookup
-from edr.store import (
+from edr.store.atomic import remove_partial_files
+from edr.store.checkpoints import UnreadableCheckpoint, WriteStopped, progress
+from edr.store.folders import (
     FOLDER_ROOM,
     Resume,
     SweepSummary,
@@ -52,6 +42,16 @@ from edr.store import (
     log_attempt,
     plan_attempt,
     refused_cells,
+)
+from edr.store.identity import job_dirname, run_identity, warn_ignored
+from edr.store.records import (
+    UnreadableRecord,
+    check_flat,
+    git_revision,
+    machine_info,
+    now,
+    write_last_record,
+    write_record,
 )
 from edr.validate import ConfigError, Seed, Threads, check_config, path_problem
 
@@ -267,7 +267,7 @@ def hydra_app(cfg: DictConfig) -> None:
     a folder held or of another config): one line, exit 2, before any work. Failed: the record
     says ``failed`` with the reason (written by :func:`run`); a disk's error is one line, exit 1,
     anything else its traceback. In a sweep, a refused or failed cell is one line and the sweep
-    goes on to its other cells and its summary line (:class:`edr.store.SweepSummary`), which
+    goes on to its other cells and its summary line (:class:`edr.store.folders.SweepSummary`), which
     counts it and ends the sweep with exit 1. Inside a submitit job (Slurm), a refusal goes back
     to the waiting sweep as one line (:class:`JobFailed`)."""
     in_job = bool(os.environ.get("SUBMITIT_EXECUTOR"))  # a Slurm or local submitit job

@@ -24,7 +24,6 @@ from typing import Any
 
 import pandas as pd
 
-from edr.atomic import write_text_atomic
 from edr.report.atari import table1_atari
 from edr.report.event_camera import table3_event_camera
 from edr.report.features import features_table
@@ -45,6 +44,7 @@ from edr.report.recognition import ablation_edr, appendix_a_dvs, table2_ucf101, 
 from edr.report.render import write_table
 from edr.report.runs import BadRecord, load_runs, read_json, run_file
 from edr.report.speed import atari_cost_table, speed_table
+from edr.store.atomic import write_text_atomic
 
 # paper/ as committed: the largest-scale records there are (each folder's command in
 # results/learning/README.md) and the tiny sweeps of Table 2 and Figure 3b (make paper runs them).

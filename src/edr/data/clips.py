@@ -20,9 +20,9 @@ from torch.utils.data import Dataset
 from tqdm import tqdm
 
 from edr import interrupts
-from edr.atomic import atomic_path
 from edr.data.datasets import Video, VideoSet
 from edr.data.video import read_video
+from edr.store.atomic import atomic_path
 
 PAPER_SCALES = (1.0, 0.875, 0.75, 0.66)
 

@@ -34,7 +34,7 @@ import numpy as np
 from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
 from edr.data.video import UnreadableVideo, check_video_file
-from edr.identity import digest
+from edr.store.identity import digest
 from edr.validate import ConfigError, Fraction, OpenFraction, check_memory
 
 UCF_LAYOUT = (

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from edr.identity import digest
+from edr.store.identity import digest
 
 HASH_UP_TO_BYTES = 64 * 2**20  # sets up to this size are hashed byte by byte
 

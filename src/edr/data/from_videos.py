@@ -17,9 +17,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edr.atomic import publish_dir
 from edr.data.synthetic import ucf101_name, write_ucf101_lists
 from edr.data.video import read_video, write_video
+from edr.store.atomic import publish_dir
 from edr.validate import PositiveInt
 
 SPEEDS = {"RealSpeed1x": 1, "RealSpeed2x": 2, "RealSpeed4x": 4}  # class -> frame step

@@ -16,7 +16,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from edr.atomic import atomic_path, save_figure, write_text_atomic
 from edr.report.atari import INPUT_NAMES, atari_runs, normalised_scores
 from edr.report.recognition import learnable_runs, without_ablations
 from edr.report.render import provenance
@@ -29,6 +28,7 @@ from edr.report.runs import (
     run_history,
     run_json,
 )
+from edr.store.atomic import atomic_path, save_figure, write_text_atomic
 
 Draw = Callable[[], "plt.Figure | None"]
 

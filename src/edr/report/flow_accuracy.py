@@ -1,5 +1,5 @@
 """The optical-flow accuracy table (``paper/flow_accuracy.md``) from a record of
-``python -m edr.flow_accuracy``."""
+``python -m edr.studies.flows``."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ def flow_accuracy_table(record: dict[str, Any], source: str = "") -> str:
     lines = [
         "# Optical flow against ground truth: average endpoint error (pixels, lower is better)",
         "",
-        "`python -m edr.flow_accuracy`: pairs made by warping matplotlib's `grace_hopper.jpg`",
+        "`python -m edr.studies.flows`: pairs made by warping matplotlib's `grace_hopper.jpg`",
         "(gray, 320x240) with known flows: translation (2.3, -1.4) px, rotation 2 degrees about the",
         "centre, zoom 3 %, a smooth random field (Gaussian-smoothed noise, sigma 25 px, at most",
         f"3 px). EPE over the image less a {record['border']}-pixel border; each method with its",

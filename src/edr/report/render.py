@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from edr.atomic import write_text_atomic
+from edr.store.atomic import write_text_atomic
 
 SCALE_WORDS = {
     "tiny": "tiny (the CI subset: seconds per run)",

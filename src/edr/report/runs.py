@@ -22,9 +22,9 @@ from typing import Any
 
 import pandas as pd
 
-from edr.identity import flatten
-from edr.records import RECORD_NAME
-from edr.store import holder_alive
+from edr.store.folders import holder_alive
+from edr.store.identity import flatten
+from edr.store.records import RECORD_NAME
 
 # What must match for runs to be averaged into one number.
 CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]

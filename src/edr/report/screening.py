@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from edr.atomic import write_text_atomic
-from edr.checkpoints import CHECKPOINT, load_checkpoint
 from edr.report.runs import load_runs, run_history
+from edr.store.atomic import write_text_atomic
+from edr.store.checkpoints import CHECKPOINT, load_checkpoint
 
 MILESTONES = (250_000, 500_000, 1_000_000, 1_500_000)  # env steps at which the score is shown
 TARGETS = (-15.0, 0.0)  # training scores whose first env step is shown

@@ -160,7 +160,7 @@ def brox_flow(
 ) -> torch.Tensor:
     """Flow (N, 2, H, W) that carries ``first`` (N, 1, H, W) onto ``second``: second(x + w) ~
     first(x). Intensities 0..1. One warp per pyramid level, as OpenCV's CUDA class (more warps
-    per level did not lower the error on the ground-truth pairs of ``edr.flow_accuracy``)."""
+    per level did not lower the error on the ground-truth pairs of ``edr.studies.flows``)."""
     n, _, h, w = first.shape
     levels = [(h, w)]
     while min(levels[-1]) * scale_factor >= min_size:

@@ -227,7 +227,7 @@ class EDR(Representation):
         """(K,) the ratio's exponents (the log-ratio's weights)."""
         return self.beta if self.parameterization == "log" else self.log_beta.exp()
 
-    def values(self) -> dict[str, float]:
+    def settings_now(self) -> dict[str, float]:
         """``{"edr/tau_0": ..., "edr/beta_0": ..., "edr/nu_on_0": ..., "edr/nu_off_0": ...}``:
         the layer's settings as numbers, one per timescale (what a learnable layer learned)."""
         with torch.no_grad():

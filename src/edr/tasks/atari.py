@@ -27,20 +27,8 @@ from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
 from edr import interrupts
-from edr.atomic import write_json_atomic
-from edr.checkpoints import (
-    CHECKPOINT,
-    DATA_FINGERPRINT,
-    check_same_data,
-    load_checkpoint,
-    restore,
-    save_atomic,
-    save_checkpoint,
-)
 from edr.models.dead_units import DeadUnits
 from edr.models.paac import PAACNetwork
-from edr.rebuild import UntrustedRecord, instantiate_from_record
-from edr.records import UnreadableRecord, read_record
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.learner import Diverged, Learner
@@ -54,6 +42,18 @@ from edr.rl.settings import (
     OptimSettings,
 )
 from edr.rl.transform import ObservationFrame
+from edr.store.atomic import write_json_atomic
+from edr.store.checkpoints import (
+    CHECKPOINT,
+    DATA_FINGERPRINT,
+    check_same_data,
+    load_checkpoint,
+    restore,
+    save_atomic,
+    save_checkpoint,
+)
+from edr.store.rebuild import UntrustedRecord, instantiate_from_record
+from edr.store.records import UnreadableRecord, read_record
 from edr.tasks.plots import save_score_curve
 from edr.tasks.scalars import LoggerName, open_logger
 from edr.validate import ConfigError, PositiveInt, check_memory
@@ -435,7 +435,7 @@ def evaluate_checkpoint(
     (the run's ``evaluation.plays`` by default) as the run would have, and writes
     ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
     (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
-    the metrics. The record builds only the suite's own parts (:mod:`edr.rebuild`), and a
+    the metrics. The record builds only the suite's own parts (:mod:`edr.store.rebuild`), and a
     module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is
     imported only with ``trust_env_module``.
     """

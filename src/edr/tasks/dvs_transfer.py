@@ -21,13 +21,13 @@ from torch import nn
 from tqdm import tqdm
 
 from edr import interrupts
-from edr.atomic import write_json_atomic
 from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
 from edr.data.events import list_recordings, read_recording, sensor_of
 from edr.data.fingerprint import files_fingerprint
 from edr.models.divergence import divergence
 from edr.representations import EDR, DVSSimulator, events_to_frames
+from edr.store.atomic import write_json_atomic
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted, check_decoded_memory

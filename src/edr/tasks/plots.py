@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from edr.atomic import save_figure
+from edr.store.atomic import save_figure
 
 
 def save_learning_curve(history: Sequence[dict[str, float]], path: Path) -> Path:

@@ -22,8 +22,15 @@ from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
 from edr import interrupts
-from edr.atomic import write_json_atomic
-from edr.checkpoints import (
+from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
+from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
+from edr.models import RecognitionModel, activation_sparsity, input_norm
+from edr.models.dead_units import DeadUnits
+from edr.models.divergence import divergence
+from edr.representations import EDR, Representation
+from edr.representations.base import check_enough_frames
+from edr.store.atomic import write_json_atomic
+from edr.store.checkpoints import (
     CHECKPOINT,
     DATA_FINGERPRINT,
     check_same_data,
@@ -32,15 +39,8 @@ from edr.checkpoints import (
     save_atomic,
     save_checkpoint,
 )
-from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
-from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
-from edr.models import RecognitionModel, activation_sparsity, input_norm
-from edr.models.dead_units import DeadUnits
-from edr.models.divergence import divergence
-from edr.rebuild import instantiate_from_record
-from edr.records import RECORD_NAME, read_record
-from edr.representations import EDR, Representation
-from edr.representations.base import check_enough_frames
+from edr.store.rebuild import instantiate_from_record
+from edr.store.records import RECORD_NAME, read_record
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.scalars import LoggerName, open_logger
@@ -91,7 +91,7 @@ def evaluate(
 
 def load_model(run_dir: str | Path) -> RecognitionModel:
     """The model a recognition run trained, rebuilt from its record's config and ``model.pt``;
-    the config builds only the suite's own parts (:mod:`edr.rebuild`)."""
+    the config builds only the suite's own parts (:mod:`edr.store.rebuild`)."""
     run_dir = Path(run_dir)
     config = read_record(run_dir / RECORD_NAME)["config"]
     saved = torch.load(run_dir / MODEL, weights_only=True)
@@ -447,7 +447,7 @@ def _grad_norm(module: nn.Module) -> float:
 def _learned(representation: Representation | None) -> dict[str, float]:
     """A learnable EDR's current values (``edr/tau_0``, ...); nothing for any other layer."""
     if isinstance(representation, EDR) and representation.learnable:
-        return representation.values()
+        return representation.settings_now()
     return {}
 
 

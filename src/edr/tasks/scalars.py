@@ -7,7 +7,7 @@ import importlib.util
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
-from edr.atomic import write_text_atomic
+from edr.store.atomic import write_text_atomic
 from edr.validate import Check
 
 if TYPE_CHECKING:

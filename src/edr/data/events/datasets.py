@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from edr.atomic import atomic_path
 from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of
+from edr.store.atomic import atomic_path
 
 NMNIST_SENSOR = (34, 34)
 DSEC_SENSOR, MVSEC_SENSOR = (480, 640), (260, 346)

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from edr.atomic import atomic_path
 from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of
+from edr.store.atomic import atomic_path
 
 # jAER chip -> (height, width); the name as it appears in headers, matched case-insensitively
 CHIPS = {"dvs128": (128, 128), "davis240": (180, 240), "davis346": (260, 346),

@@ -25,8 +25,8 @@ from types import ModuleType
 import numpy as np
 from numba import njit
 
-from edr.atomic import atomic_path
 from edr.data.events.checks import CHUNK_EVENTS, EVENT_DTYPE, RecordingError, events_of, joined
+from edr.store.atomic import atomic_path
 
 # The sensor of a Prophesee camera whose header names only its plugin (hal_plugin_<key>_...)
 PLUGIN_SENSORS = {"gen3": (480, 640), "gen31": (480, 640), "gen4": (720, 1280),

@@ -1,7 +1,7 @@
 """What each representation hands the network: the distribution of its output, per channel, on
 the clips a recognition run trains on (why does EDR trail GrayDiff on generated video?).
 
-``python -m edr.representation_statistics`` decodes generated KTH-layout video (``make demo``'s
+``python -m edr.studies.representation_statistics`` decodes generated KTH-layout video (``make demo``'s
 generator) and the real KTH clips (``../shared/real-video/kth``, or ``--real``) as
 ``experiment=kth_demo`` and ``kth_real`` do (gray, 53x40), cuts each video into consecutive
 24-frame clips, runs every representation named (as ``conf/representation/<name>.yaml`` and,
@@ -27,12 +27,12 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from edr import CONF_DIR
-from edr.atomic import write_json_atomic
 from edr.data.clips import VideoSource
 from edr.data.datasets import kth, resolve_root
 from edr.data.synthetic import write_synthetic_kth
-from edr.records import git_revision, machine_info
 from edr.representations import Representation
+from edr.store.atomic import write_json_atomic
+from edr.store.records import git_revision, machine_info
 
 REPRESENTATIONS = ("fdr", "graydiff", "edr", "edr:fast_slow", "edr_sum")  # gray: RGBDiff = GrayDiff
 REAL_VIDEO = os.environ.get("EDR_REAL_VIDEO", "../shared/real-video")
@@ -107,7 +107,7 @@ def table(measured: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m edr.representation_statistics",
+        prog="python -m edr.studies.representation_statistics",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

@@ -2,7 +2,7 @@
 truncated windows, on clips of T = 60 and T = 250 frames (the paper's section 5: "end-to-end
 learning the EDR parameters seems to be quite unstable").
 
-``python -m edr.edr_gradients`` fits a learnable EDR (half-life 1.0, beta, nu learnable) to the
+``python -m edr.studies.edr_stability`` fits a learnable EDR (half-life 1.0, beta, nu learnable) to the
 events of a fixed one (the paper's half-life 3.8) on generated scenes, one seed per scene, with
 Adam, in each parameterization (``log``, ``bounded``); per setting it reports the gradient
 norm of the raw parameters at the start (median and coefficient of variation over seeds), the
@@ -22,10 +22,10 @@ from typing import Any
 
 import torch
 
-from edr.atomic import write_json_atomic
 from edr.data import synthetic_scene
-from edr.records import bench_dir, git_revision, machine_info
 from edr.representations import EDR
+from edr.store.atomic import write_json_atomic
+from edr.store.records import bench_dir, git_revision, machine_info
 
 TARGET_HALF_LIFE = 3.8
 
@@ -85,7 +85,7 @@ def table(record: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m edr.edr_gradients",
+        prog="python -m edr.studies.edr_stability",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

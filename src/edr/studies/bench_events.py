@@ -15,9 +15,9 @@ from pathlib import Path
 
 from tabulate import tabulate
 
-from edr.atomic import write_json_atomic
 from edr.data.events import detect_format, read_recording
-from edr.records import git_revision, machine_info
+from edr.store.atomic import write_json_atomic
+from edr.store.records import git_revision, machine_info
 
 FLOOR_EVENTS_PER_S = {"EVT 3.0": 10e6, "AEDAT 4": 10e6}  # the median a read must reach
 

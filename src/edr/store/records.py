@@ -1,7 +1,7 @@
 """Run records: one JSON file per run, with everything needed to trust and regenerate a number.
 
 ``run.json`` holds the run's ``status`` (``running``, ``finished`` or ``failed`` with its
-``error``), its ``fingerprint`` and ``cell`` (see ``edr.identity``), the ``scale`` (``tiny``,
+``error``), its ``fingerprint`` and ``cell`` (see ``edr.store.identity``), the ``scale`` (``tiny``,
 ``full`` or a named preset), the ``data`` it read (source, root, content fingerprint), flat
 scalar ``metrics``, the resolved config, the command-line overrides, git revision, machine and
 times. Curves, histories and confusion matrices are files beside it.
@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from edr.atomic import write_json_atomic
+from edr.store.atomic import write_json_atomic
 
 RECORD_NAME = "run.json"
 
@@ -143,7 +143,7 @@ class BenchRow:
 
 
 def bench_dir() -> Path:
-    """Where the benchmarks (edr-bench, edr.flow_accuracy, edr.edr_gradients) write their records
+    """Where the benchmarks (edr-bench, edr.studies.flows, edr.studies.edr_stability) write their records
     by default: ``results/runs/bench/`` (under ``EDR_RESULTS`` when it is set), which git ignores.
     The committed records in ``results/bench/``, which ``edr-tables`` reads, are written there
     with ``--out-dir results/bench``."""

@@ -16,10 +16,10 @@ from typing import Any
 
 from tqdm import tqdm
 
-from edr.atomic import write_json_atomic
-from edr.records import BenchRow, git_revision, machine_info
 from edr.report.speed import atari_cost_table
 from edr.representations import EDR
+from edr.store.atomic import write_json_atomic
+from edr.store.records import BenchRow, git_revision, machine_info
 
 
 @dataclass

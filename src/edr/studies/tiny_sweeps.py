@@ -1,8 +1,8 @@
 """The paper's sweeps at tiny scale: the grid CI runs for every table (seeds 0 and 1 where a
 table averages over seeds; fewer cells where the full grid would take minutes), all at
-``debug=tiny`` on generated data. ``python -m edr.sweeps DIR`` runs them all into ``DIR``.
+``debug=tiny`` on generated data. ``python -m edr.studies.tiny_sweeps DIR`` runs them all into ``DIR``.
 
-    python -m edr.sweeps results/sweeps/tiny && edr-tables   # what paper/ holds now
+    python -m edr.studies.tiny_sweeps results/sweeps/tiny && edr-tables   # what paper/ holds now
 """
 
 from __future__ import annotations

@@ -34,9 +34,7 @@ import torch
 from tqdm import tqdm
 
 from edr.allocator import keep_freed_memory
-from edr.atomic import write_json_atomic
 from edr.data import read_video, synthetic_scene
-from edr.records import BenchRow, bench_dir, git_revision, machine_info
 from edr.report.published import load_published
 from edr.report.speed import INFERENCE_IN_TURN, LEARNABLE, TRAIN_FUSED, TRAIN_TORCH, speed_table
 from edr.representations import (
@@ -53,6 +51,8 @@ from edr.representations import (
     decode_motion_vectors,
 )
 from edr.representations.mpeg_flow import encode_clip
+from edr.store.atomic import write_json_atomic
+from edr.store.records import BenchRow, bench_dir, git_revision, machine_info
 
 K3 = (1.0, 3.8, 8.0)
 
@@ -308,11 +308,13 @@ def main(argv: list[str] | None = None) -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.atari:
-        from edr.bench_atari import run_atari_bench  # ale-py, EnvPool and torchrl load only here
+        from edr.studies.bench_atari import (
+            run_atari_bench,  # ale-py, EnvPool and torchrl load only here
+        )
 
         run_atari_bench(args, repeats)
     elif args.events:
-        from edr.bench_events import run_events_bench
+        from edr.studies.bench_events import run_events_bench
 
         run_events_bench(args, repeats)
     else:

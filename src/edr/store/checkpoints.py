@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from edr.atomic import atomic_path
+from edr.store.atomic import atomic_path
 from edr.validate import ConfigError
 
 CHECKPOINT = "checkpoint.pt"

@@ -1,6 +1,6 @@
 """Optical flow against ground truth: frame pairs made by warping a real image with known flows.
 
-``python -m edr.flow_accuracy`` writes a record, ``<out-dir>/flow_accuracy_<host>_<time>.json``,
+``python -m edr.studies.flows`` writes a record, ``<out-dir>/flow_accuracy_<host>_<time>.json``,
 and prints its table; ``edr-tables`` renders the newest into ``paper/flow_accuracy.md``: the
 average endpoint error
 (EPE, pixels) of Brox, TV-L1 and Farneback on four pairs made from the photograph matplotlib
@@ -24,9 +24,9 @@ import cv2
 import numpy as np
 import torch
 
-from edr.atomic import write_json_atomic
-from edr.records import bench_dir, git_revision, machine_info
 from edr.report.flow_accuracy import KINDS, flow_accuracy_table
+from edr.store.atomic import write_json_atomic
+from edr.store.records import bench_dir, git_revision, machine_info
 
 BORDER = 20  # pixels left out of the EPE on every side
 
@@ -113,7 +113,7 @@ def evaluate(image: np.ndarray) -> dict[str, dict[str, float]]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m edr.flow_accuracy",
+        prog="python -m edr.studies.flows",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

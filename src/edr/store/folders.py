@@ -32,8 +32,8 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, read_write
 
-from edr.checkpoints import CHECKPOINT
-from edr.identity import (
+from edr.store.checkpoints import CHECKPOINT
+from edr.store.identity import (
     IDENTITY_KEYS,
     config_diff,
     flatten,
@@ -41,7 +41,7 @@ from edr.identity import (
     is_semantic_override,
     warn_ignored,
 )
-from edr.records import RECORD_NAME, now, read_record
+from edr.store.records import RECORD_NAME, now, read_record
 from edr.validate import ConfigError, path_problem
 
 ATTEMPTS = "attempts.jsonl"
