@@ -28,33 +28,16 @@ from numba import njit, prange
 
 from edr.representations import buffers, kernels
 from edr.representations.base import GRAY_WEIGHTS
-from edr.representations.kernels import ema_step
+from edr.representations.kernel_core import TRAINING_CHUNK, ema_step, load_intensity, threshold
 from edr.representations.vector_math import exp_into, log_into
-
-CHUNK = 1024  # pixels a job runs through time together: 4 KiB rows stream from memory
-
-
-@njit(inline="always")
-def _load(frames, b, t, c, lo, hi, gray, weights, eps, dst):
-    """dst (n,) = the intensities of channel c (luma of the three, when ``gray``) of frame t of
-    row b at pixels lo..hi, + eps, in dst's dtype: the kernels read uint8 video as it comes
-    (converting it first cost as much as the forward kernel's own work)."""
-    if gray:
-        red, green, blue = frames[b, t, 0, lo:hi], frames[b, t, 1, lo:hi], frames[b, t, 2, lo:hi]
-        for j in range(hi - lo):
-            dst[j] = weights[0] * red[j] + weights[1] * green[j] + weights[2] * blue[j] + eps
-    else:
-        src = frames[b, t, c, lo:hi]
-        for j in range(hi - lo):
-            dst[j] = src[j] + eps
 
 
 @njit(inline="always")
 def _job(job, channels, n_chunks, pixels):
     b = job // (channels * n_chunks)
     c = (job // n_chunks) % channels
-    lo = (job % n_chunks) * CHUNK
-    return b, c, lo, min(pixels, lo + CHUNK)
+    lo = (job % n_chunks) * TRAINING_CHUNK
+    return b, c, lo, min(pixels, lo + TRAINING_CHUNK)
 
 
 # The kernels loop over a chunk's contiguous pixels innermost, in the compute dtype (weights'),
@@ -87,19 +70,14 @@ def _response(ratio, x, plain, log_form, r, scratch):
 
 
 @njit(inline="always")
-def _threshold(r, on_th, off_th, hard, zero, on, off):
-    """ON and OFF events (n,) of a response r (n,): r - on_th above on_th, off_th - r below
-    off_th (soft), or 1 there (hard)."""
-    one = zero + 1
+def _threshold_chunk(r, on_th, off_th, hard, zero, on, off):
+    """ON and OFF events (n,) of a response r (n,), by :func:`threshold`."""
     if hard:  # two loops: a select on ``hard`` inside one kept LLVM from vectorising it
         for j in range(r.shape[0]):
-            on[j] = one if r[j] > on_th else zero
-            off[j] = one if r[j] < off_th else zero
+            on[j], off[j] = threshold(r[j], on_th, off_th, True, zero)
         return
     for j in range(r.shape[0]):
-        rj = r[j]
-        on[j] = rj - on_th if rj > on_th else zero
-        off[j] = off_th - rj if rj < off_th else zero
+        on[j], off[j] = threshold(r[j], on_th, off_th, False, zero)
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -107,11 +85,11 @@ def forward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_f
                    out):  # fmt: skip
     """frames (B, T, C_in, P) -> events out (B, T, C, K', 2, P), C = 1 (``gray``: the luma of
     three channels, by ``weights``) or C_in, computed in the dtype of ``weights``. The EMAs live
-    in a chunk's state (K, CHUNK) only, as in inference: the backward recomputes them
+    in a chunk's state (K, TRAINING_CHUNK) only, as in inference: the backward recomputes them
     (:func:`ema_chunk`)."""
     n_b, n_t, n_c, _, _, n_p = out.shape
     n_k = alpha.shape[0]
-    n_chunks = (n_p + CHUNK - 1) // CHUNK
+    n_chunks = (n_p + TRAINING_CHUNK - 1) // TRAINING_CHUNK
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
         zero = weights[0] * 0
@@ -119,7 +97,7 @@ def forward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_f
         now, ratio, x, acc, r, scratch = work[0], work[1], work[2], work[3], work[4], work[5]
         state = np.empty((n_k, hi - lo), weights.dtype)  # e_k(t - 1); e(-1) = I(0)
         for t in range(n_t):
-            _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
+            load_intensity(frames, b, t, c, lo, gray, 0, weights, eps, now)
             if t == 0:
                 for k in range(n_k):
                     state[k] = now
@@ -136,12 +114,12 @@ def forward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_f
                         acc[j] += x[j]
                 else:
                     resp = _response(ratio, x, plain, log_form, r, scratch)
-                    _threshold(resp, on_th[k], off_th[k], hard, zero,
-                               out[b, t, c, k, 0, lo:hi], out[b, t, c, k, 1, lo:hi])  # fmt: skip
+                    _threshold_chunk(resp, on_th[k], off_th[k], hard, zero,
+                                     out[b, t, c, k, 0, lo:hi], out[b, t, c, k, 1, lo:hi])  # fmt: skip
             if sum_k:
                 resp = _response(ratio, acc, False, log_form, r, scratch)
-                _threshold(resp, on_th[0], off_th[0], hard, zero,
-                           out[b, t, c, 0, 0, lo:hi], out[b, t, c, 0, 1, lo:hi])  # fmt: skip
+                _threshold_chunk(resp, on_th[0], off_th[0], hard, zero,
+                                 out[b, t, c, 0, 0, lo:hi], out[b, t, c, 0, 1, lo:hi])  # fmt: skip
 
 
 @njit(inline="always")
@@ -153,7 +131,7 @@ def ema_chunk(frames, gray, weights, eps, alpha, b, c, lo, hi):
     ema = np.empty((n_t, n_k, hi - lo), weights.dtype)
     now = np.empty(hi - lo, weights.dtype)
     for t in range(n_t):
-        _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
+        load_intensity(frames, b, t, c, lo, gray, 0, weights, eps, now)
         for k in range(n_k):
             prev = now if t == 0 else ema[t - 1, k]
             cur, a = ema[t, k], alpha[k]
@@ -173,7 +151,7 @@ def backward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_
     constant)."""
     n_b, n_t, n_c, _, _, n_p = grad_out.shape
     n_k = alpha.shape[0]
-    n_chunks = (n_p + CHUNK - 1) // CHUNK
+    n_chunks = (n_p + TRAINING_CHUNK - 1) // TRAINING_CHUNK
     for job in prange(n_b * n_c * n_chunks):
         b, c, lo, hi = _job(job, n_c, n_chunks, n_p)
         n = hi - lo
@@ -186,7 +164,7 @@ def backward_kernel(frames, gray, weights, eps, alpha, beta, on_th, off_th, log_
         now, g_i, inv_now, g_x, x, r, scratch = (work[0], work[1], work[2], work[3], work[4],
                                                  work[5], work[6])  # fmt: skip
         for t in range(n_t - 1, -1, -1):
-            _load(frames, b, t, c, lo, hi, gray, weights, eps, now)
+            load_intensity(frames, b, t, c, lo, gray, 0, weights, eps, now)
             for j in range(n):
                 g_i[j] = zero
                 inv_now[j] = 1 / now[j]
@@ -281,7 +259,7 @@ class FusedEDRFunction(torch.autograd.Function):
         frames, alpha, beta, on_th, off_th = ctx.saved_tensors
         log_form, sum_k, window, gray, eps = ctx.flags
         b, t, c, _, _, p = grad_out.shape
-        jobs = b * c * ((p + CHUNK - 1) // CHUNK)
+        jobs = b * c * ((p + TRAINING_CHUNK - 1) // TRAINING_CHUNK)
         dtype = alpha.dtype
         want_input = ctx.needs_input_grad[0]  # frames straight from a video need none
         grad_in = buffers.RECYCLED.empty((b, t, c, p) if want_input else (1, 1, 1, 1), dtype)

@@ -2,8 +2,11 @@
 
 The kernels split the pixels of each clip into chunks that fit in L1/L2 and give every
 (batch row, chunk) to one thread, which then walks the frames in order: the EMA state of its
-chunk stays in cache for the whole clip. They compute the same float32 expressions, in the same
-order, as the torch code in ``edr.py`` and ``frames.py``, so the two paths agree to rounding.
+chunk stays in cache for the whole clip (``kernel_core.INFERENCE_CHUNK`` pixels a chunk).
+They compute the same float32 expressions, in the same order, as the torch code in ``edr.py``
+and ``frames.py``, so the two paths agree to rounding; the per-pixel steps (the intensity's
+load, the EMA's step, the threshold) are :mod:`edr.representations.kernel_core`'s, which the
+training kernels share.
 ``frame_kernel`` is ``edr_kernel`` for one streaming step that also writes FDR: an Atari
 observation frame in one pass (``edr.rl.transform.ObservationFrame``).
 Compiled code is cached on disk (``cache=True``): only the first call on a machine compiles.
@@ -32,9 +35,14 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from edr.representations.base import GRAY_WEIGHTS
+from edr.representations.kernel_core import (
+    INFERENCE_CHUNK,
+    LUMA,
+    ema_step,
+    load_intensity,
+    threshold,
+)
 
-CHUNK = 4096  # pixels per work item: 16 KiB of float32 state per timescale
 # Fewer pixel-frames than this run on the launching thread alone. After a parallel launch TBB's
 # worker spins ~1 ms of CPU before it sleeps, whatever the launch's size: a streaming env step
 # of 16 Pong envs (113K pixels) took 0.25 ms on 1 thread and 0.23 ms on 2, plus that 1 ms taken
@@ -59,7 +67,6 @@ def _load_tbb() -> str | None:
 
 TBB_LIBRARY = _load_tbb()
 
-W_R, W_G, W_B = (np.float32(w) for w in GRAY_WEIGHTS)
 ZERO = np.float32(0.0)
 ONE = np.float32(1.0)
 
@@ -83,43 +90,10 @@ def launch(kernel: Callable[..., None], pixels: int, *args: Any) -> None:
 
 
 @njit(inline="always")
-def _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, dst):
-    """dst[:n] = intensity of channel c (or luma, when ``gray``) of x[b, t] at pixels lo.. + eps.
-
-    x is (B, T, C, P) planar, or (B, T, 1, P * C) with ``interleaved`` = C channels per pixel.
-    """
-    if interleaved:
-        # Flat indexing: numba's 2-D indexing of (P, C) was 5x slower here.
-        px = x[b, t, 0, interleaved * lo : interleaved * (lo + n)]
-        if gray:
-            for i in range(n):
-                dst[i] = (
-                    W_R * np.float32(px[3 * i])
-                    + W_G * np.float32(px[3 * i + 1])
-                    + W_B * np.float32(px[3 * i + 2])
-                ) + eps
-        else:
-            for i in range(n):
-                dst[i] = np.float32(px[interleaved * i + c]) + eps
-    elif gray:
-        xr = x[b, t, 0, lo : lo + n]
-        xg = x[b, t, 1, lo : lo + n]
-        xb = x[b, t, 2, lo : lo + n]
-        for i in range(n):
-            dst[i] = (
-                W_R * np.float32(xr[i]) + W_G * np.float32(xg[i]) + W_B * np.float32(xb[i])
-            ) + eps
-    else:
-        xc = x[b, t, c, lo : lo + n]
-        for i in range(n):
-            dst[i] = np.float32(xc[i]) + eps
-
-
-@njit(inline="always")
 def _chunk(job, n_chunks, n_pix):
     """Work item ``job`` -> (batch row, first pixel, pixel count) of its chunk."""
-    lo = (job % n_chunks) * CHUNK
-    return job // n_chunks, lo, min(CHUNK, n_pix - lo)
+    lo = (job % n_chunks) * INFERENCE_CHUNK
+    return job // n_chunks, lo, min(INFERENCE_CHUNK, n_pix - lo)
 
 
 @njit(parallel=True, cache=True)
@@ -157,7 +131,7 @@ def edr_kernel(
     n_batch, n_frames = x.shape[0], x.shape[1]
     n_pix = x.shape[3] // interleaved if interleaved else x.shape[3]
     n_chan, n_k = ema.shape[1], ema.shape[2]
-    n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    n_chunks = (n_pix + INFERENCE_CHUNK - 1) // INFERENCE_CHUNK
     for job in prange(n_batch * n_chunks):
         b, lo, n = _chunk(job, n_chunks, n_pix)
         intensity = np.empty(n, np.float32)
@@ -168,7 +142,7 @@ def edr_kernel(
                     ema[b, c, k, lo : lo + n] = ema_source[b, c, k, lo : lo + n]
         for t in range(n_frames):
             for c in range(n_chan):
-                _load_intensity(x, b, t, c, lo, n, gray, interleaved, eps, intensity)
+                load_intensity(x, b, t, c, lo, gray, interleaved, LUMA, eps, intensity)
                 _edr_channel(
                     ema, b, c, lo, n, intensity, t == 0 and restart[b], alpha, beta, on_th,
                     off_th, log_form, hard, sum_k, acc, out, (b, t, c, lo),
@@ -214,14 +188,14 @@ def frame_kernel(
     n_chan, n_k = ema.shape[1], ema.shape[2]
     n_kout = 1 if sum_k else n_k
     n_fdr, n_edr = len(fdr_slots), len(edr_slots)
-    n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    n_chunks = (n_pix + INFERENCE_CHUNK - 1) // INFERENCE_CHUNK
     for job in prange(n_batch * n_chunks):
         b, lo, n = _chunk(job, n_chunks, n_pix)
         values = np.empty(n, np.float32)
         acc = np.empty(n, np.float32)
         events = np.empty((1, 1, n_chan, n_kout, 2, n), np.float32)  # as edr_kernel's out
         for c in range(n_chan):
-            _load_intensity(x, b, 0, c, lo, n, edr_gray, interleaved, eps, values)
+            load_intensity(x, b, 0, c, lo, edr_gray, interleaved, LUMA, eps, values)
             _edr_channel(
                 ema, b, c, lo, n, values, restart[b], alpha, beta, on_th, off_th, log_form,
                 hard, sum_k, acc, events, (0, 0, c, 0),
@@ -233,7 +207,7 @@ def frame_kernel(
         else:  # FDR's values gathered first: luma, or the channels of interleaved pixels
             fdr = np.empty((n_fdr, n), np.float32)
             for c in range(n_fdr):
-                _load_intensity(x, b, 0, c, lo, n, fdr_gray, interleaved, ZERO, fdr[c])
+                load_intensity(x, b, 0, c, lo, fdr_gray, interleaved, LUMA, ZERO, fdr[c])
             _write_frame(frame, n, fdr, events_flat, fdr_slots, edr_slots)
 
 
@@ -277,13 +251,6 @@ def _edr_channel(ema, b, c, lo, n, intensity, first, alpha, beta, on_th, off_th,
 
 
 @njit(inline="always")
-def ema_step(prev, a, now):
-    """The EMA's one step, e(t) = e(t-1) + a (I(t) - e(t-1)): inference, the training forward
-    and the backward's recomputation of it all take it from here."""
-    return prev + a * (now - prev)
-
-
-@njit(inline="always")
 def _ema_events(em, intensity, a, bk, hi_th, lo_th, log_form, hard, on, off):
     """One timescale: ``em`` (n,) moves toward ``intensity`` (n,) by ``a``; the ON / OFF events
     of the ratio ``intensity / em`` (its ``bk`` power, or ``bk`` log) into ``on`` and ``off``."""
@@ -292,9 +259,7 @@ def _ema_events(em, intensity, a, bk, hi_th, lo_th, log_form, hard, on, off):
         for i in range(intensity.shape[0]):
             e = ema_step(em[i], a, intensity[i])
             em[i] = e
-            r = intensity[i] / e
-            on[i] = r - hi_th if r > hi_th else ZERO
-            off[i] = lo_th - r if r < lo_th else ZERO
+            on[i], off[i] = threshold(intensity[i] / e, hi_th, lo_th, False, ZERO)
         return
     for i in range(intensity.shape[0]):
         e = ema_step(em[i], a, intensity[i])
@@ -306,7 +271,7 @@ def _ema_events(em, intensity, a, bk, hi_th, lo_th, log_form, hard, on, off):
             r = ratio
         else:
             r = ratio**bk
-        _threshold(r, hi_th, lo_th, hard, on, off, i)
+        on[i], off[i] = threshold(r, hi_th, lo_th, hard, ZERO)
 
 
 @njit(inline="always")
@@ -323,17 +288,7 @@ def _sum_events(acc, hi_th, lo_th, log_form, hard, on, off):
     """The events of a summed log response ``acc`` (its exp unless ``log_form``)."""
     for i in range(acc.shape[0]):
         r = acc[i] if log_form else np.exp(acc[i])
-        _threshold(r, hi_th, lo_th, hard, on, off, i)
-
-
-@njit(inline="always")
-def _threshold(r, hi_th, lo_th, hard, on, off, i):
-    if hard:
-        on[i] = ONE if r > hi_th else ZERO
-        off[i] = ONE if r < lo_th else ZERO
-    else:
-        on[i] = r - hi_th if r > hi_th else ZERO
-        off[i] = lo_th - r if r < lo_th else ZERO
+        on[i], off[i] = threshold(r, hi_th, lo_th, hard, ZERO)
 
 
 @njit(parallel=True, cache=True)
@@ -345,14 +300,14 @@ def gray_diff_kernel(x, scale, out):
     """
     n_batch, n_frames, n_in, n_pix = x.shape
     gray = n_in == 3
-    n_chunks = (n_pix + CHUNK - 1) // CHUNK
+    n_chunks = (n_pix + INFERENCE_CHUNK - 1) // INFERENCE_CHUNK
     for job in prange(n_batch * n_chunks):
         b, lo, n = _chunk(job, n_chunks, n_pix)
         prev = np.empty(n, np.float32)
         cur = np.empty(n, np.float32)
-        _load_intensity(x, b, 0, 0, lo, n, gray, 0, ZERO, prev)
+        load_intensity(x, b, 0, 0, lo, gray, 0, LUMA, ZERO, prev)
         for t in range(1, n_frames):
-            _load_intensity(x, b, t, 0, lo, n, gray, 0, ZERO, cur)
+            load_intensity(x, b, t, 0, lo, gray, 0, LUMA, ZERO, cur)
             o = out[b, t - 1, 0, lo : lo + n]
             for i in range(n):
                 o[i] = scale * (cur[i] - prev[i])
