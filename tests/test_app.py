@@ -32,8 +32,10 @@ def test_demo_runs_and_writes_a_record(compose_config, tmp_path) -> None:
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["metrics"] == metrics
     assert record["config"]["task"]["frames"] == 8
-    for key in ("figure/representations", "figure/pixel"):
-        assert Path(metrics[key]).stat().st_size > 1000
+    for key, name in (("figure/representations", "representations.png"),
+                      ("figure/pixel", "pixel_response.png")):  # fmt: skip
+        assert metrics[key] == name  # a file of the run, named from its folder
+        assert (tmp_path / name).stat().st_size > 1000
     assert all(metrics[f"fps/{name}"] > 0 for name in cfg.task.representations)
 
 

@@ -1,15 +1,20 @@
-"""Video decoding errors, the generated scene, and atomic run records."""
+"""Video decoding errors, the generated scene, atomic run records, and the paths they hold."""
 
 from __future__ import annotations
 
+import json
+import shutil
 import subprocess
 
 import pytest
 import torch
 
+from edr import tables
 from edr.data import read_video, synthetic_scene, write_video
+from edr.run import run
 from edr.store.atomic import write_json_atomic
 from edr.store.records import check_flat, git_revision, read_record, write_record
+from edr.tasks.recognition import load_model
 
 
 def test_video_round_trip(tmp_path) -> None:
@@ -80,3 +85,33 @@ def test_git_revision_is_dirty_for_code_changes_not_for_results(tmp_path) -> Non
     assert git_revision(tmp_path / "src") == head
     (tmp_path / "src/code.py").write_text("2")
     assert git_revision(tmp_path / "src") == head + "+dirty"
+
+
+def test_a_record_names_no_folder_of_its_machine_under_the_results_root(
+    compose_config, monkeypatch, tmp_path
+) -> None:
+    """Paths under the results root are written from it, files of the run from its folder; the
+    tables read a record of this form and one of the old, absolute form alike."""
+    results = tmp_path / "results"
+    monkeypatch.setenv("EDR_RESULTS", str(results))
+    run_dir = results / "runs" / "kth"
+    run(compose_config("task=kth", "debug=tiny", f"out_dir={run_dir}", "task.logger="))
+    record = read_record(run_dir / "run.json")
+    assert record["config"]["out_dir"] == "<paths.results>/runs/kth"
+    assert record["config"]["paths"]["results"] == "<paths.results>"
+    assert record["config"]["task"]["cache_dir"] == "<paths.results>/cache"
+    assert record["data"]["root"].startswith("<paths.results>/cache/write_synthetic_kth_")
+    written = json.dumps([record["config"], record["data"], record["metrics"]])
+    assert str(tmp_path) not in written  # (the overrides stay as they were typed)
+
+    old = tmp_path / "old" / "kth"  # as records were written before: absolute paths
+    shutil.copytree(run_dir, old)
+    text = (run_dir / "run.json").read_text().replace("<paths.results>", str(results))
+    (old / "run.json").write_text(text)
+    rendered = []
+    for runs in (results / "runs", old.parent):
+        out = tmp_path / f"paper_{runs.name}"
+        tables.main(["--runs", str(runs), "--out", str(out), "--bench", str(tmp_path / "bench")])
+        rendered.append((out / "table4_kth.md").read_text().split("Records:")[0])
+    assert rendered[0] == rendered[1]
+    assert load_model(old).state_dict().keys() == load_model(run_dir).state_dict().keys()

@@ -253,3 +253,23 @@ def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
     assert steps_to_score(record, 18) == 3000  # the first row at or above it
     assert steps_to_score(record, 20) is None  # never reached
     assert steps_to_score(str(tmp_path / "missing" / "run.json"), 18) is None
+
+
+def test_a_caption_names_the_revisions_with_uncommitted_changes() -> None:
+    import pandas as pd
+
+    from edr.report.flow_accuracy import flow_accuracy_table
+    from edr.report.render import Table, to_latex, to_markdown
+
+    runs = pd.DataFrame({"data.source": ["generated"] * 3, "scale": ["tiny"] * 3,
+                         "machine": ["m"] * 3, "git": ["abc", "def+dirty", "def+dirty"],
+                         "record": ["a", "b", "c"]})  # fmt: skip
+    table = Table("t", "A table", pd.DataFrame({"x": [1]}), runs)
+    named = "Uncommitted code** (2 of 3 records): git def+dirty: changes to tracked files"
+    assert f"- **{named}" in to_markdown(table)
+    assert named.replace("**", "") in to_latex(table)
+    clean = Table("t", "A table", pd.DataFrame({"x": [1]}), runs.assign(git="abc"))
+    assert "Uncommitted" not in to_markdown(clean) + to_latex(clean)
+    bench = {"machine": {"cpu": "c", "cpu_count": 2}, "border": 8, "measured_at": "now",
+             "git": "abc+dirty", "epe": {}}  # fmt: skip
+    assert "Uncommitted code: git abc+dirty: changes" in flow_accuracy_table(bench)

@@ -19,7 +19,8 @@ from edr.data.synthetic import action_video, write_synthetic_kth
 from edr.data.video import write_video
 from edr.run import run
 from edr.store.atomic import atomic_path, publish_dir
-from edr.store.identity import job_dirname, run_identity
+from edr.store.folders import plan_attempt
+from edr.store.identity import job_dirname, run_identity, with_root_symbols
 from edr.validate import ConfigError
 
 TINY_KTH = ("task=kth", "debug=tiny")
@@ -36,6 +37,66 @@ def test_fingerprint_ignores_where_and_how_and_the_cell_ignores_the_seed(compose
     semantic, fingerprint, seeded_cell = run_identity(seeded)
     assert semantic["task"]["videos"]["seed"] == 1
     assert fingerprint != base and seeded_cell == cell
+
+
+def test_a_setting_has_one_identity_wherever_the_suites_folders_are(
+    compose_config, monkeypatch, tmp_path
+) -> None:
+    """Two checkouts: the same experiment, other results and real-video folders."""
+    identities = []
+    for checkout in ("one", "two"):
+        monkeypatch.setenv("EDR_RESULTS", str(tmp_path / checkout / "results"))
+        monkeypatch.setenv("EDR_REAL_VIDEO", str(tmp_path / checkout / "real-video"))
+        semantic, fingerprint, cell = run_identity(compose_config("experiment=kth_real"))
+        identities.append((fingerprint, cell))
+    assert identities[0] == identities[1]
+    assert semantic["task"]["data_root"] == "<paths.real_video>/kth"
+    assert str(tmp_path) not in json.dumps(semantic)
+    given = run_identity(compose_config("experiment=kth_real", "task.data_root=/data/KTH"))[0]
+    assert given["task"]["data_root"] == "/data/KTH"  # a path given directly stays as given
+
+
+def test_paths_under_a_root_are_written_from_its_symbol() -> None:
+    roots = {"results": "/me/edr/results", "cache": "/me/edr/results/cache", "x": "<paths.x>"}
+    written = with_root_symbols(
+        {
+            "out_dir": "/me/edr/results/runs/kth/seed=0",
+            "paths": {"results": "/me/edr/results"},
+            "root": "/me/edr/results/cache/kth_1",  # the innermost root
+            "events": "DVS simulator on 10 videos per class of /me/edr/results/cache/kth_1",
+            "videos": ["/me/edr/results/a.avi", "/me/edr/results2/a.avi", "/you/me/edr/results"],
+            "given": "results/cache/bikes.mp4",
+            "frames": 3,
+        },
+        roots,
+    )
+    assert written == {
+        "out_dir": "<paths.results>/runs/kth/seed=0",
+        "paths": {"results": "<paths.results>"},
+        "root": "<paths.cache>/kth_1",
+        "events": "DVS simulator on 10 videos per class of <paths.cache>/kth_1",
+        "videos": ["<paths.results>/a.avi", "/me/edr/results2/a.avi", "/you/me/edr/results"],
+        "given": "results/cache/bikes.mp4",
+        "frames": 3,
+    }
+
+
+def test_a_record_from_before_the_folders_had_symbols_is_the_same_run(
+    compose_config, tmp_path
+) -> None:
+    """Its identity held its machine's folders; its config says which they were."""
+    cfg = compose_config("experiment=kth_real", f"out_dir={tmp_path}")
+    semantic, fingerprint, _ = run_identity(cfg)
+    there = "/elsewhere/real-video"
+    before = json.loads(json.dumps(semantic).replace("<paths.real_video>", there))
+    record = {"status": "finished", "fingerprint": "before", "metrics": {"eval/accuracy": 0.5},
+              "semantic_config": before, "config": {"paths": {"real_video": there}}}  # fmt: skip
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    assert plan_attempt(tmp_path, fingerprint, semantic, "auto").action == "skip"
+    record["config"]["paths"]["real_video"] = "/another/folder"  # not under its root: another run
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    with pytest.raises(ConfigError, match=r"task\.data_root: '/elsewhere/real-video/kth' -> '<"):
+        plan_attempt(tmp_path, fingerprint, semantic, "auto")
 
 
 def test_job_folder_names_come_from_semantic_overrides() -> None:

@@ -17,6 +17,7 @@ import os
 import random
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,7 @@ from edr.store.folders import (
     plan_attempt,
     refused_cells,
 )
-from edr.store.identity import job_dirname, run_identity, warn_ignored
+from edr.store.identity import job_dirname, run_identity, warn_ignored, with_root_symbols
 from edr.store.records import (
     UnreadableRecord,
     check_flat,
@@ -147,6 +148,8 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
 
     # ---- the record, then the task -----------------------------------------------------------
     previous = plan.record or {}
+    # paths under the results root are written from it: no machine's folder in a record
+    portable = partial(with_root_symbols, roots={"results": cfg.paths.results})
     record: dict[str, Any] = {
         "status": "running",
         "task": choices.get("task", cfg.task._target_),
@@ -162,7 +165,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         "overrides": overrides,
         "git": git_revision(),
         "machine": machine_info(),
-        "config": OmegaConf.to_container(cfg, resolve=True),
+        "config": portable(OmegaConf.to_container(cfg, resolve=True)),
         "semantic_config": semantic,
     }
     write_record(out_dir, record)
@@ -187,6 +190,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         raise
 
     # ---- the finished record -----------------------------------------------------------------
+    results = portable(results)
     record.update(
         status="finished",
         data={k.removeprefix("data/"): v for k, v in results.items() if k.startswith("data/")},

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from edr.report.render import uncommitted
+
 KINDS = ("translation", "rotation", "zoom", "smooth")  # the known flows each method is scored on
 
 
@@ -23,6 +25,7 @@ def flow_accuracy_table(record: dict[str, Any], source: str = "") -> str:
         f"measured {record['measured_at']}, git `{record['git']}`"
         + (f", record `{source}`" if source else "")
         + ".",
+        *([f"Uncommitted code: {dirty}."] if (dirty := uncommitted([record["git"]])) else []),
         "",
         "| Method | " + " | ".join(KINDS) + " |",
         "|---|" + "---:|" * len(KINDS),

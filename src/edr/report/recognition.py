@@ -9,7 +9,7 @@ from typing import Any
 import pandas as pd
 
 from edr.report.published import cite, lookup
-from edr.report.render import Table, mean_std
+from edr.report.render import Table, mean_std, uncommitted
 from edr.report.runs import cells, finished, placeable, unfinished
 from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
 
@@ -193,7 +193,8 @@ def table2_ucf101(
             [
                 f"Speed: `edr-bench` on {machine.get('cpu')} ({machine.get('cpu_count')} cores), "
                 f"{speed['clip']}, {speed['measured_at']}, git `{speed['git']}`. "
-                "Ratios from that one run:",
+                + (f"Uncommitted code: {dirty}. " if (dirty := uncommitted([speed["git"]])) else "")
+                + "Ratios from that one run:",
                 "",
                 *ratio_lines(speed["rows"], published.get("speed", {})),
             ]

@@ -4,12 +4,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
 
 from edr.store.atomic import write_text_atomic
+from edr.store.records import DIRTY
 
 SCALE_WORDS = {
     "tiny": "tiny (the CI subset: seconds per run)",
@@ -82,20 +84,39 @@ def _words(values: pd.Series, words: dict[str, str]) -> str:
     return "; ".join(words.get(v, v) for v in found) or "—"
 
 
+def uncommitted(revisions: Iterable[object]) -> str:
+    """A sentence naming the revisions that end in ``+dirty`` (run with changes to tracked files
+    that no commit holds); empty when every one is a commit."""
+    dirty = sorted({str(r) for r in revisions if str(r).endswith(DIRTY)})
+    if not dirty:
+        return ""
+    return (
+        f"git {'; '.join(dirty)}: changes to tracked files that no commit holds, so git cannot "
+        "rebuild exactly the code behind these numbers"
+    )
+
+
 def provenance(runs: pd.DataFrame, from_code: bool = False) -> list[str]:
-    """Where the numbers come from: data, scale, machines, git revisions, how many records."""
+    """Where the numbers come from: data, scale, machines, git revisions (those with uncommitted
+    changes named as such), how many records."""
     if from_code:
         return ["- **From the code**: declared properties, not measurements."]
     if runs.empty:
         return ["- **No finished runs** behind this table yet."]
-    return [
+    lines = [
         f"- **Data**: {_words(runs['data.source'], SOURCE_WORDS)}.",
         f"- **Scale**: {_words(runs['scale'], SCALE_WORDS)}.",
         f"- **Machine**: {_words(runs['machine'], {})}.",
         f"- **Code**: git {_words(runs['git'], {})}.",
-        f"- **Runs**: {len(runs)} finished records; a row averages only runs that share every "
-        "setting but the seed (mean ± std over seeds), and says how many.",
     ]
+    if dirty := uncommitted(runs["git"].dropna()):
+        count = int(runs["git"].astype(str).str.endswith(DIRTY).sum())
+        lines.append(f"- **Uncommitted code** ({count} of {len(runs)} records): {dirty}.")
+    lines.append(
+        f"- **Runs**: {len(runs)} finished records; a row averages only runs that share every "
+        "setting but the seed (mean ± std over seeds), and says how many."
+    )
+    return lines
 
 
 def to_markdown(table: Table, published: dict | None = None) -> str:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from edr.report.published import cite, lookup
+from edr.report.render import uncommitted
 
 # The learnable EDR's rows: forward+backward after one optimizer step (as in training), and
 # inference of the same clip timed in turn with it (A B A B), which their ratio compares.
@@ -104,6 +105,7 @@ def speed_table(record: dict[str, Any], published: dict[str, Any], source: str =
     paper's figures (``published``: the published numbers' ``speed`` section)."""
     m = record["machine"]
     rows = record["rows"]
+    dirty = uncommitted([record["git"]])
     lines = [
         "# Table 2, speed: representations per second, ours beside the paper's",
         "",
@@ -113,6 +115,7 @@ def speed_table(record: dict[str, Any], published: dict[str, Any], source: str =
         f"allocator: {m.get('allocator', '?')}, GPU: {m.get('gpu') or 'none'}; {record['measured_at']}, git `{record['git']}`"
         + (f", record `{source}`" if source else "")
         + ".",
+        *([f"- **Uncommitted code**: {dirty}."] if dirty else []),
         f"- **Data**: {record['clip']}; {record['frames_per_call']} frames per call "
         f"(slow flows: fewer, see Frames); median of {record['repeats']} timed calls after "
         f"{record.get('warmup', 1)} warm-up call(s). "
@@ -187,6 +190,8 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
             f"{m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'} | "
             f"{r['measured_at']}, `{r['git']}` | `{path.name}` |"
         )
+    if dirty := uncommitted(r["git"] for _, r in paired):
+        lines += ["", f"Uncommitted code: {dirty}."]
     older = [p.name for p, r in records if "costs" not in r]
     if older:
         lines += ["", f"Older records, from before paired timing, not shown: {', '.join(older)}."]

@@ -40,6 +40,7 @@ from edr.store.identity import (
     ignored_overrides,
     is_semantic_override,
     warn_ignored,
+    with_root_symbols,
 )
 from edr.store.records import RECORD_NAME, now, read_record
 from edr.validate import ConfigError, path_problem
@@ -95,8 +96,10 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
         return Plan("run", record)
     if record is not None and record.get("fingerprint") != fingerprint:
         # what can change a result (a record from before the fingerprint kept only these keys
-        # holds the whole config: the same run if these agree)
+        # holds the whole config, and one from before the roots had symbols holds its machine's
+        # folders: the same run if these agree)
         old = {k: v for k, v in record.get("semantic_config", {}).items() if k in IDENTITY_KEYS}
+        old = with_root_symbols(old, _roots(record))
         if old == semantic:
             return _plan_for_this_config({**record, "fingerprint": fingerprint}, checkpoint,
                                          resume, out_dir)  # fmt: skip
@@ -109,6 +112,13 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
             "restore those values, choose another folder, or pass resume=false to start over"
         )
     return _plan_for_this_config(record, checkpoint, resume, out_dir)
+
+
+def _roots(record: dict[str, Any]) -> dict[str, Any]:
+    """The suite's roots a record's run had (its ``config.paths``); none where it names none."""
+    config = record.get("config")
+    paths = config.get("paths") if isinstance(config, dict) else None
+    return paths if isinstance(paths, dict) else {}
 
 
 def _nested_records(out_dir: Path) -> Iterator[Path]:

@@ -1,8 +1,10 @@
 """What makes two runs the same run: the fingerprint of what the task receives (its resolved
 node) and the seed, minus what cannot change a result (where files go, threads, loggers, resume
-flags). A group the task does not read (``optimizer`` for Atari) is not part of it. A sweep maps
-each cell to a folder named from the job's own overrides, minus the same keys, so that the same
-command finds the same folders again.
+flags). A group the task does not read (``optimizer`` for Atari) is not part of it. A path under
+one of the suite's roots (``paths.*``) enters it as ``<paths.real_video>/kth``, not as this
+machine's folder, so a setting has one identity on every checkout. A sweep maps each cell to a
+folder named from the job's own overrides, minus the same keys, so that the same command finds
+the same folders again.
 """
 
 from __future__ import annotations
@@ -88,14 +90,52 @@ def without_added_defaults(node: Any) -> Any:
     return node
 
 
+def root_symbol(name: str) -> str:
+    """How a suite root stands in an identity or a record: ``<paths.results>``."""
+    return f"<paths.{name}>"
+
+
+def symbolic_roots(cfg: DictConfig) -> DictConfig:
+    """A copy of ``cfg`` whose ``paths.*`` roots are their symbols, so that what interpolates
+    them (``task.data_root: ${paths.real_video}/kth``) resolves to ``<paths.real_video>/kth``."""
+    symbolic = copy.deepcopy(cfg)
+    for name in symbolic.get("paths") or {}:
+        symbolic.paths[name] = root_symbol(str(name))
+    return symbolic
+
+
+def with_root_symbols(node: Any, roots: Mapping[str, str]) -> Any:
+    """``node`` (JSON-like) with every absolute path under one of ``roots`` (name -> folder)
+    written from that root's symbol, the innermost root first, also inside a sentence:
+    ``/home/me/edr/results/cache/x`` -> ``<paths.results>/cache/x``."""
+    # absolute folders only: a root already written as its symbol (a record's own) is none
+    symbols = {str(root): root_symbol(name) for name, root in roots.items() if str(root)[:1] == "/"}
+    if not symbols:
+        return node
+    # a root where a path starts (not inside another name) and up to where its own name ends
+    alternatives = "|".join(map(re.escape, sorted(symbols, key=len, reverse=True)))
+    pattern = re.compile(rf"(?<![^\s'\"(=:])({alternatives})(?=/|$|[\s'\"),;])")
+
+    def write(value: Any) -> Any:
+        if isinstance(value, str):
+            return pattern.sub(lambda found: symbols[found.group(1)], value)
+        if isinstance(value, Mapping):
+            return {key: write(v) for key, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [write(v) for v in value]
+        return value
+
+    return write(node)
+
+
 def _identity_config(cfg: DictConfig) -> dict[str, Any]:
-    resolved = OmegaConf.to_container(cfg, resolve=True)
+    resolved = OmegaConf.to_container(symbolic_roots(cfg), resolve=True)
     return without_added_defaults(semantic_config({k: resolved.get(k) for k in IDENTITY_KEYS}))
 
 
 def run_identity(cfg: DictConfig) -> tuple[dict[str, Any], str, str]:
     """(semantic config, fingerprint, cell): the seed and the task's resolved node, minus what
-    cannot change a result; the cell is the fingerprint with the seed taken out everywhere it is
+    cannot change a result and with the suite's roots as symbols; the cell is the fingerprint with the seed taken out everywhere it is
     used (``${seed}`` interpolations too), so seeds of one cell share it."""
     semantic = _identity_config(cfg)
     unseeded = copy.deepcopy(cfg)

@@ -3,8 +3,15 @@
 ``run.json`` holds the run's ``status`` (``running``, ``finished`` or ``failed`` with its
 ``error``), its ``fingerprint`` and ``cell`` (see ``edr.store.identity``), the ``scale`` (``tiny``,
 ``full`` or a named preset), the ``data`` it read (source, root, content fingerprint), flat
-scalar ``metrics``, the resolved config, the command-line overrides, git revision, machine and
-times. Curves, histories and confusion matrices are files beside it.
+scalar ``metrics``, the resolved config, the command-line overrides, git revision (``+dirty``
+for uncommitted changes), machine and times. Curves, histories and confusion matrices are files
+beside it.
+
+No machine's folder is written for the results root: a path under it is written from it
+(``<paths.results>/cache/write_synthetic_kth_3f44a9a7a8``, also ``config.out_dir`` and
+``config.paths.results`` itself), a file of the run from its folder (``figure/pixel:
+pixel_response.png``); paths elsewhere stay as they were given. Records from before hold
+absolute paths; whatever reads a record takes both.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ RECORD_NAME = "run.json"
 
 
 OUTPUT_DIRS = ("results", "paper")  # what runs and edr-tables write: no change to the code
+DIRTY = "+dirty"  # a revision with changes to tracked files that no commit holds
 
 
 def git_revision(repo: Path | None = None) -> str:
@@ -47,7 +55,7 @@ def git_revision(repo: Path | None = None) -> str:
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
-    return rev + ("+dirty" if dirty else "")
+    return rev + (DIRTY if dirty else "")
 
 
 def cpu_model() -> str:

@@ -75,8 +75,12 @@ def representation_demo(
     picture_path = _draw_frames(clip, outputs, representations, shown, (y, x), source, out_dir)
     response_path = _draw_pixel(gray, outputs, (y, x), out_dir)
     log.info("figures: %s, %s", picture_path, response_path)
+    # files of the run, named from its folder
     metrics.update(
-        {"figure/representations": str(picture_path), "figure/pixel": str(response_path)}
+        {
+            "figure/representations": str(picture_path.relative_to(out_dir)),
+            "figure/pixel": str(response_path.relative_to(out_dir)),
+        }
     )
     return metrics
 
