@@ -48,8 +48,9 @@ paper: setup
 	$(BIN)/edr-tables
 
 # The tests run on one process per core (pytest-xdist, 4 at most: each holds torch and starts
-# subprocesses); a file's tests stay on one process, so a module's shared fixture runs once.
-XDIST := -n auto --maxprocesses 4 --dist loadfile
+# subprocesses), test by test; those of one xdist_group (the paper's tiny sweeps, the Slurm
+# cluster's) stay together on one process.
+XDIST := -n auto --maxprocesses 4 --dist loadgroup
 
 test: setup
 	$(BIN)/ruff check src tests

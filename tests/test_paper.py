@@ -15,6 +15,8 @@ from edr.report.runs import load_runs
 from edr.run import run
 from edr.sweeps import run_tiny_sweeps
 
+pytestmark = pytest.mark.xdist_group("paper")  # make test: the tiny sweeps run once, on one process
+
 
 @pytest.fixture(scope="module")
 def paper(tmp_path_factory) -> Path:
