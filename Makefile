@@ -47,14 +47,19 @@ paper: setup
 	$(BIN)/python -m edr.studies.tiny_sweeps results/sweeps/tiny  # skips the cells it ran before
 	$(BIN)/edr-tables
 
+# The tests run on one process per core (pytest-xdist, 4 at most: each holds torch and starts
+# subprocesses), test by test; those of one xdist_group (the paper's tiny sweeps, the Slurm
+# cluster's) stay together on one process.
+XDIST := -n auto --maxprocesses 4 --dist loadgroup
+
 test: setup
 	$(BIN)/ruff check src tests
 	$(BIN)/ruff format --check src tests
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q --durations=15 $(XDIST)
 
 # The edit loop: everything but the tests marked slow (over 10 s) and learning (training runs).
 test-fast: setup
-	$(BIN)/python -m pytest -q -m "not slow and not learning"
+	$(BIN)/python -m pytest -q -m "not slow and not learning" $(XDIST)
 
 lint: setup
 	$(BIN)/ruff check --fix src tests

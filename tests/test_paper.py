@@ -16,6 +16,8 @@ from edr.run import run
 from edr.studies import bench
 from edr.studies.tiny_sweeps import run_tiny_sweeps
 
+pytestmark = pytest.mark.xdist_group("paper")  # make test: the tiny sweeps run once, on one process
+
 
 @pytest.fixture(scope="module")
 def paper(tmp_path_factory) -> Path:

@@ -24,7 +24,8 @@ import pytest
 
 from cluster import NO_CLUSTER, slurm_environment
 
-pytestmark = [pytest.mark.cluster, pytest.mark.slow]  # minutes of jobs, when a cluster is up
+pytestmark = [pytest.mark.cluster, pytest.mark.slow,  # minutes of jobs, when a cluster is up
+              pytest.mark.xdist_group("slurm")]  # one test at a time on its one node  # fmt: skip
 SLURM_ENV = slurm_environment()
 if SLURM_ENV is None:
     pytest.skip(NO_CLUSTER, allow_module_level=True)  # one line for the module
