@@ -3,6 +3,7 @@ writes a sound record."""
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -87,6 +88,34 @@ def test_input_normalisation_centres_or_batch_normalises_each_frame(core: str) -
     scaled = [3 * f + 1 for f in frames]  # batch statistics take out any per-channel affine map
     torch.testing.assert_close(normed(frames, state, state, first)[0],
                                normed(scaled, state, state, first)[0], atol=1e-4, rtol=1e-4)  # fmt: skip
+
+
+@pytest.mark.parametrize(("core", "frames"), [("none", 4), ("lenet_ftlstm", 1)])
+def test_batchnorm_folded_into_the_first_conv_is_batchnorm_then_the_conv(
+    core: str, frames: int
+) -> None:
+    """The fast path's maps and every gradient (the normalisation's scale and shift included)
+    equal normalising each frame with the BatchNorm2d module, then the trunk."""
+    torch.manual_seed(0)
+    net = PAACNetwork(5 * frames, 6, core, input_norm="batchnorm", frames=frames)
+    with torch.no_grad():
+        net.normalise.weight.uniform_(0.5, 2.0)
+        net.normalise.bias.uniform_(-1.0, 1.0)
+    reference = copy.deepcopy(net)
+    obs = [torch.rand(8, 5, 84, 84) for _ in range(frames)]
+    maps = net._maps(obs)
+    normed = [reference.normalise(f).contiguous(memory_format=torch.channels_last) for f in obs]
+    expected = reference.trunk(normed if core == "none" else normed[-1])
+    torch.testing.assert_close(maps, expected, atol=1e-4, rtol=1e-4)
+    weights = torch.randn_like(maps)
+    (maps * weights).sum().backward()
+    (expected * weights).sum().backward()
+    for (name, ours), theirs in zip(net.named_parameters(), reference.parameters(), strict=True):
+        if theirs.grad is not None:
+            torch.testing.assert_close(ours.grad, theirs.grad, atol=1e-3, rtol=1e-4, msg=name)
+    assert net.normalise.weight.grad.abs().sum() > 0
+    torch.testing.assert_close(net.normalise.running_mean, reference.normalise.running_mean)
+    assert net.normalise.num_batches_tracked == reference.normalise.num_batches_tracked
 
 
 def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -> None:

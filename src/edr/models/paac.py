@@ -66,16 +66,39 @@ class FramesConv(nn.Conv2d):
     frames [(B, C, H, W)] * n: the sum of every frame's convolution with its slice of the
     weights, equal to the convolution of the stack (B, n*C, H, W) without building it."""
 
-    def forward(self, frames: Sequence[torch.Tensor]) -> torch.Tensor:  # -> (B, out, H', W')
+    def forward(
+        self,
+        frames: Sequence[torch.Tensor],
+        weight: torch.Tensor | None = None,
+        bias: torch.Tensor | None = None,
+    ) -> torch.Tensor:  # -> (B, out, H', W')
+        """``weight`` and ``bias`` (default: the layer's own) as :func:`fold_affine` gives them."""
         if self.in_channels % len(frames):
             raise ValueError(
                 f"{self.in_channels} input channels do not split into {len(frames)} frames"
             )
-        weights = self.weight.split(self.in_channels // len(frames), dim=1)
-        out = functional.conv2d(frames[0], weights[0], self.bias, self.stride)
+        weight = self.weight if weight is None else weight
+        bias = self.bias if bias is None else bias
+        weights = weight.split(self.in_channels // len(frames), dim=1)
+        out = functional.conv2d(frames[0], weights[0], bias, self.stride)
         for frame, weight in zip(frames[1:], weights[1:], strict=True):
             out = out + functional.conv2d(frame, weight, None, self.stride)
         return out
+
+
+def fold_affine(
+    conv: nn.Conv2d, scale: torch.Tensor, shift: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``conv``'s weight and bias with a per-channel affine map of its input folded in: the
+    input x * scale + shift (scale, shift (C,), repeated for each frame stacked on ``conv``'s
+    channels) convolved with the layer equals x convolved with these. Exact in arithmetic, as
+    ``conv`` has no padding; its gradients reach scale and shift without the gradient by the
+    layer's input (84x84 a frame), which took most of an update's time."""
+    if conv.padding not in ((0, 0), "valid"):
+        raise ValueError(f"an affine map folds into an unpadded convolution, not {conv}")
+    repeats = conv.in_channels // scale.numel()
+    scale, shift = (t.repeat(repeats).view(1, -1, 1, 1) for t in (scale, shift))
+    return conv.weight * scale, conv.bias + (conv.weight * shift).sum((1, 2, 3))
 
 
 class PAACNetwork(nn.Module):
@@ -163,14 +186,39 @@ class PAACNetwork(nn.Module):
     def _maps(self, frames: list[torch.Tensor]) -> torch.Tensor:
         """The trunk's feature maps (B, F, h, w) of the frames [(B, C, 84, 84)] * n; observations
         may come as float16, and go channels-last as the trunk."""
+        if self.input_norm == "batchnorm":
+            return self._normalised_maps(frames)
         frames = [f.to(torch.float32, memory_format=torch.channels_last) for f in frames]
         if self.input_norm == "centred":
             frames = [f - 0.5 for f in frames]
-        elif self.input_norm == "batchnorm":
-            frames = [self.normalise(f) for f in frames]
         if self.core_type == "lenet_ftlstm":
             return self.trunk(frames[-1])  # (B, 16, 18, 18)
         return self.trunk(frames)  # (B, 32, 9, 9)
+
+    def _normalised_maps(self, frames: list[torch.Tensor]) -> torch.Tensor:
+        """:meth:`_maps` of the frames batch-normalised as ``self.normalise`` does, its affine
+        map folded into the first convolution (:func:`fold_affine`): the same function and
+        gradients, an update ~3x faster. Statistics are taken on the contiguous frames (twice as
+        fast on CPU as channels-last), then the frames go channels-last as the trunk."""
+        bn = self.normalise
+        if bn.training:
+            bn.num_batches_tracked.add_(len(frames))
+        frames = [
+            functional.batch_norm(
+                f.to(torch.float32), bn.running_mean, bn.running_var, training=bn.training,
+                momentum=bn.momentum, eps=bn.eps,
+            ).contiguous(memory_format=torch.channels_last)
+            for f in frames
+        ]  # fmt: skip
+        first, *rest = self.trunk
+        weight, bias = fold_affine(first, bn.weight, bn.bias)
+        if self.core_type == "lenet_ftlstm":
+            maps = functional.conv2d(frames[-1], weight, bias, first.stride)
+        else:
+            maps = first(frames, weight, bias)
+        for layer in rest:
+            maps = layer(maps)
+        return maps  # (B, 32, 9, 9); lenet_ftlstm (B, 16, 18, 18)
 
     def _step(
         self, frames: list[torch.Tensor], h: torch.Tensor, c: torch.Tensor
