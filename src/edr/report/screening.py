@@ -59,6 +59,7 @@ def screening_rows(runs: pd.DataFrame) -> pd.DataFrame:
         rows.append({
             "Network": get("config.task.network.core"),
             "Input norm": get("config.task.network.input_norm", "raw") or "raw",
+            "Init": get("config.task.network.init"),
             "Optimizer": f"{optimizer} {lr:g}" if pd.notna(lr) and lr else f"{optimizer} (default lr)",
             "Input": get("config.task.env.inputs"),
             "Seed": get("seed"),
@@ -87,8 +88,9 @@ def screening_markdown(runs: pd.DataFrame, source: Path) -> str:
         "Training score: the mean of the last 20 training episodes (random play "
         f"{RANDOM_PLAY}). Entropy (ln 6 = 1.79 is a uniform policy), logit spread (the "
         "logits' std across a rollout's states, averaged over actions; near 0 when the policy "
-        "ignores the frames), conv1 dead and env steps/s: means of the last 50 updates. A run "
-        "still in progress shows how far it got (Status). Machine: see each run.json.",
+        "ignores the frames), conv1 dead and env steps/s: means of the last 50 updates (env "
+        "steps/s depends on what else ran on the machine meanwhile). A run still in progress "
+        "shows how far it got (Status). Machine: see each run.json.",
         "",
         text,
         "",
