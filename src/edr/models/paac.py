@@ -90,15 +90,22 @@ def fold_affine(
     conv: nn.Conv2d, scale: torch.Tensor, shift: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``conv``'s weight and bias with a per-channel affine map of its input folded in: the
-    input x * scale + shift (scale, shift (C,), repeated for each frame stacked on ``conv``'s
-    channels) convolved with the layer equals x convolved with these. Exact in arithmetic, as
-    ``conv`` has no padding; its gradients reach scale and shift without the gradient by the
-    layer's input (84x84 a frame), which took most of an update's time."""
+    input x * scale + shift (scale, shift (in_channels,)) convolved with the layer equals x
+    convolved with these. Exact in arithmetic, as ``conv`` has no padding; gradients reach
+    scale and shift without the gradient by the layer's input (84x84 a frame)."""
     if conv.padding not in ((0, 0), "valid"):
         raise ValueError(f"an affine map folds into an unpadded convolution, not {conv}")
-    repeats = conv.in_channels // scale.numel()
-    scale, shift = (t.repeat(repeats).view(1, -1, 1, 1) for t in (scale, shift))
+    scale, shift = scale.view(1, -1, 1, 1), shift.view(1, -1, 1, 1)
     return conv.weight * scale, conv.bias + (conv.weight * shift).sum((1, 2, 3))
+
+
+def batch_statistics(frame: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """frame (B, C, H, W) -> each channel's mean and biased variance (C,), in one pass over
+    the frame (sums of x and x^2; the frames are bounded, so no cancellation to fear)."""
+    x = frame.to(torch.float32).flatten(2)  # (B, C, H*W)
+    n = x.shape[0] * x.shape[2]
+    mean = x.sum((0, 2)) / n
+    return mean, ((x * x).sum((0, 2)) / n - mean * mean).clamp_min(0.0)
 
 
 class PAACNetwork(nn.Module):
@@ -196,29 +203,40 @@ class PAACNetwork(nn.Module):
         return self.trunk(frames)  # (B, 32, 9, 9)
 
     def _normalised_maps(self, frames: list[torch.Tensor]) -> torch.Tensor:
-        """:meth:`_maps` of the frames batch-normalised as ``self.normalise`` does, its affine
-        map folded into the first convolution (:func:`fold_affine`): the same function and
-        gradients, an update ~3x faster. Statistics are taken on the contiguous frames (twice as
-        fast on CPU as channels-last), then the frames go channels-last as the trunk."""
+        """:meth:`_maps` of the frames batch-normalised as ``self.normalise`` would, each by
+        its own batch statistics (or the running ones in eval mode), with the whole
+        normalisation folded into the first convolution (:func:`fold_affine`): the same function
+        and gradients (the frames are constants), without conv1's gradient by its input nor a
+        normalised copy of every frame; an update ~3x faster than the module's way."""
         bn = self.normalise
-        if bn.training:
-            bn.num_batches_tracked.add_(len(frames))
-        frames = [
-            functional.batch_norm(
-                f.to(torch.float32), bn.running_mean, bn.running_var, training=bn.training,
-                momentum=bn.momentum, eps=bn.eps,
-            ).contiguous(memory_format=torch.channels_last)
-            for f in frames
-        ]  # fmt: skip
+        scales, shifts = [], []
+        for frame in frames:
+            if bn.training:
+                mean, var = batch_statistics(frame)
+                self._track(mean, var, frame.numel() // frame.shape[1])
+            else:
+                mean, var = bn.running_mean, bn.running_var
+            scale = bn.weight * torch.rsqrt(var + bn.eps)
+            scales.append(scale)
+            shifts.append(bn.bias - mean * scale)
         first, *rest = self.trunk
-        weight, bias = fold_affine(first, bn.weight, bn.bias)
+        frames = [f.to(torch.float32, memory_format=torch.channels_last) for f in frames]
         if self.core_type == "lenet_ftlstm":
+            weight, bias = fold_affine(first, scales[-1], shifts[-1])
             maps = functional.conv2d(frames[-1], weight, bias, first.stride)
         else:
-            maps = first(frames, weight, bias)
+            maps = first(frames, *fold_affine(first, torch.cat(scales), torch.cat(shifts)))
         for layer in rest:
             maps = layer(maps)
         return maps  # (B, 32, 9, 9); lenet_ftlstm (B, 16, 18, 18)
+
+    @torch.no_grad()
+    def _track(self, mean: torch.Tensor, var: torch.Tensor, n: int) -> None:
+        """Update the running statistics as BatchNorm2d does (momentum, unbiased variance)."""
+        bn = self.normalise
+        bn.num_batches_tracked.add_(1)
+        bn.running_mean.lerp_(mean, bn.momentum)
+        bn.running_var.lerp_(var * n / max(n - 1, 1), bn.momentum)
 
     def _step(
         self, frames: list[torch.Tensor], h: torch.Tensor, c: torch.Tensor
