@@ -119,11 +119,11 @@ def test_batchnorm_folded_into_the_first_conv_is_batchnorm_then_the_conv(
 
 
 def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -> None:
-    """Runs recorded before task.network.input_norm existed keep their identity; another
-    value is another run."""
+    """Runs recorded before task.network.input_norm existed (raw frames, its value then) keep
+    their identity; another value is another run."""
     from edr.store.identity import run_identity
 
-    today = run_identity(compose_config("task=atari"))
+    today = run_identity(compose_config("task=atari", "task.network.input_norm=raw"))
     before = run_identity(compose_config("task=atari", "~task.network.input_norm"))
     assert today[1:] == before[1:]  # fingerprint and cell
     other = run_identity(compose_config("task=atari", "task.network.input_norm=centred"))

@@ -66,9 +66,9 @@ class EnvSettings:
 class NetworkSettings:
     """The actor-critic network after the conv trunk."""
 
-    core: Core = "ftlstm"  # ftlstm (the paper's), lstm, none (feed-forward PAAC), lenet_ftlstm
+    core: Core = "none"  # none (feed-forward PAAC), ftlstm (the paper's), lstm, lenet_ftlstm
     init: Init = "fan_in"  # fan_in (PAAC's TensorFlow code) or orthogonal (OpenAI's A2C)
-    input_norm: InputNorm = "raw"  # raw, centred (minus 0.5) or batchnorm frames
+    input_norm: InputNorm = "batchnorm"  # batchnorm (batch statistics), raw or centred frames
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ class LossSettings:
 class OptimSettings:
     """The optimizer, its gradient clip and its learning-rate schedule."""
 
-    name: OptimizerName = "rmsprop_tf"  # PAAC's TensorFlow RMSprop, or adam
+    name: OptimizerName = "adam"  # adam (OpenAI's A2C) or rmsprop_tf (PAAC's TensorFlow RMSprop)
     lr: PositiveFloat | None = None  # None: the optimizer's default (DEFAULT_LR)
     lr_decay_env_steps: PositiveInt = 80_000_000  # the learning rate reaches 0 here
     max_grad_norm: PositiveFloat = 3.0  # L2 clip of the whole gradient
