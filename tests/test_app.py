@@ -70,13 +70,14 @@ def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
 def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
     bench.main(
         ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0",
-         "--train-frames", "40", "--out-dir", str(tmp_path / "bench")]
+         "--train-frames", "40", "--network", "lenet_ftlstm", "--out-dir", str(tmp_path / "bench")]
     )  # fmt: skip
     paths = {p.name.split("_")[1]: p for p in (tmp_path / "bench").glob("atari_*.json")}
     assert set(paths) == {"envpool", "parallel"}  # both backends, one run
     record_path = paths["envpool"]
     record = json.loads(record_path.read_text())
     assert record["backend"] == "envpool" and record["train_fps"] > 0
+    assert record["network"] == "lenet_ftlstm"  # trained with its one frame per step
     assert record["train_fps_steady"] > 0
     assert [row["name"] for row in record["rows"]] == [
         "Pong: FDR RGB, float32",
@@ -101,7 +102,7 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     (row,) = [line for line in text.splitlines() if record_path.name in line]
     assert row.startswith("| Pong | envpool | 2 | 1 | float32 |")
     assert f"{record['cost']:.1f} %" in row and f"{record['train_fps']:,.0f} over 40" in row
-    assert f"{record['train_fps_steady']:,.0f} steady" in row
+    assert f"{record['train_fps_steady']:,.0f} steady" in row and "| lenet_ftlstm |" in row
     assert record["train_fps_fdr"] > 0 and record["train_fps_fdr_steady"] > 0
     assert (
         f"(FDR: {record['train_fps_fdr']:,.0f}; {record['train_fps_fdr_steady']:,.0f} steady)"

@@ -166,13 +166,13 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
         "spends per agent step, FDR / FDR + EDR (torchrl's ParallelEnv spins while its workers run;",
         "EnvPool's threads, in the main process, spin while the main thread works between steps).",
         "Training: env steps/s of `task=atari`'s whole loop on the Envs column's envs (FDR+EDR,",
-        "ftlstm core, its other defaults;",
+        "the Network column's core, its other defaults at that git revision;",
         "in brackets the same loop with FDR alone, timed just before, in the records that have it)",
         "on that backend, over the env steps given, as its progress bar reports them (from the",
         "first rollout on, kernel compilation included), then steady: from a quarter of the way on.",
         "",
-        "| Game | Backend | Envs | Frames the env stacks | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Training (steps/s) | Machine | Measured, git | Record |",
-        "|---|---|---:|---:|---|---:|---:|---:|---|---|---:|---|---|---|",
+        "| Game | Backend | Envs | Frames the env stacks | Observation | FDR (steps/s) | FDR + EDR (steps/s) | EDR costs | Pairs | Main CPU (ms/step) | Network | Training (steps/s) | Machine | Measured, git | Record |",
+        "|---|---|---:|---:|---|---:|---:|---:|---|---|---|---:|---|---|---|",
     ]
     for path, r in paired:
         fdr, edr = r["rows"]
@@ -186,7 +186,8 @@ def atari_cost_table(records: list[tuple[Path, dict[str, Any]]]) -> str:
             f"| {r['game']} | {r.get('backend', 'parallel')} | {r['num_envs']} | {r.get('frame_stack', 1)} | "
             f"{r.get('obs_dtype', 'float32')} | {fdr['fps']:,.1f} | "
             f"{edr['fps']:,.1f} | {r['cost']:.1f} % | {len(costs)}: {min(costs):.1f} to "
-            f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | {train} | "
+            f"{max(costs):.1f} % | {' / '.join(f'{ms:.1f}' for ms in r['main_cpu_ms'])} | "
+            f"{r.get('network', 'the default then')} | {train} | "
             f"{m['cpu']} ({m['cpu_count']} cores), GPU: {m.get('gpu') or 'none'} | "
             f"{r['measured_at']}, `{r['git']}` | `{path.name}` |"
         )

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import numba
 import torch
@@ -35,6 +35,7 @@ from tqdm import tqdm
 
 from edr.allocator import keep_freed_memory
 from edr.data import read_video, synthetic_scene
+from edr.models.paac import Core
 from edr.report.published import load_published
 from edr.report.speed import INFERENCE_IN_TURN, LEARNABLE, TRAIN_FUSED, TRAIN_TORCH, speed_table
 from edr.representations import (
@@ -283,6 +284,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--train-frames", type=int, default=32_000,
         help="env steps of task=atari's training loop timed per backend (--atari; 0: skip)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--network", default="none", choices=get_args(Core),
+        help="the training loop's core (--atari; task=atari's default: none, PAAC's feed-forward)",
     )  # fmt: skip
     parser.add_argument(
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"
