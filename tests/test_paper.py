@@ -257,6 +257,21 @@ def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
     assert steps_to_score(str(tmp_path / "missing" / "run.json"), 18) is None
 
 
+def test_the_sentence_on_figure_5as_speedup_follows_the_runs_spread() -> None:
+    from edr.report.atari import faster_verdict
+
+    m = 1_000_000
+    fdr = {0.0: [1 * m, 2 * m, 3 * m], 18.0: [None, 4 * m, 5 * m]}
+    apart = {0.0: [int(0.5 * m), int(0.6 * m), int(0.7 * m)], 18.0: [None, None, None]}
+    said = faster_verdict(fdr, apart)
+    assert ": supported (judged at 0, the highest score every run reached)" in said
+    assert "FDR+EDR took 0.50 - 0.70M" in said and "3.3x by the means" in said
+    assert ": contradicted" in faster_verdict(apart, fdr)
+    overlapping = {0.0: [int(1.5 * m), int(2.5 * m), 3 * m], 18.0: [m, m, m]}
+    assert ": undecided at this spread" in faster_verdict(fdr, overlapping)
+    assert "undecided: no score" in faster_verdict({0.0: [None]}, {0.0: [m]})
+
+
 def test_a_caption_names_the_revisions_with_uncommitted_changes() -> None:
     import pandas as pd
 
