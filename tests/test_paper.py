@@ -19,9 +19,10 @@ from edr.studies.tiny_sweeps import run_tiny_sweeps
 pytestmark = pytest.mark.xdist_group("paper")  # make test: the tiny sweeps run once, on one process
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def paper(tmp_path_factory) -> Path:
-    """Every tiny sweep run once, then ``edr-tables`` over all of them into ``<root>/paper``."""
+    """Every tiny sweep run once, then ``edr-tables`` over all of them into ``<root>/paper``
+    (once a run: a module's fixture is built again each time xdist comes back to its module)."""
     root = tmp_path_factory.mktemp("paper_sweeps")
     run_tiny_sweeps(root / "sweeps", env={"EDR_CACHE": str(root / "cache")})
     (root / "bench").mkdir()
