@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from edr.report.atari import INPUT_NAMES, atari_runs, normalised_scores
-from edr.report.recognition import learnable_runs, without_ablations
+from edr.report.recognition import labelled, learnable_runs, without_ablations
 from edr.report.render import provenance
 from edr.report.runs import (
     CELL_KEYS,
@@ -34,11 +34,27 @@ Draw = Callable[[], "plt.Figure | None"]
 
 
 def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFrame]]:
-    """(label, runs) per cell: the runs a line or bar may average."""
-    return [
+    """(label, runs) per cell: the runs a line or bar may average. Cells whose ``labels`` agree
+    (they differ in another setting) are told apart by their cell, as the tables' Cell column."""
+    found = [
         (" / ".join(str(group[label].iloc[0]) for label in labels), group)
         for _, group in runs.groupby(CELL_KEYS, dropna=False, sort=True)
     ]
+    names = [name for name, _ in found]
+    return [
+        (
+            f"{name} [cell {str(group['cell'].iloc[0])[:8]}]" if names.count(name) > 1 else name,
+            group,
+        )
+        for name, group in found
+    ]
+
+
+def label_styles(panels: list[pd.DataFrame], labels: list[str]) -> dict[str, int]:
+    """A style number per label of the cells of each panel's runs, in order: one look per
+    label in a figure (whose one legend names it once)."""
+    names = dict.fromkeys(label for runs in panels for label, _ in _cells(runs, labels))
+    return {name: k for k, name in enumerate(names)}
 
 
 # A line style and marker per cell, beside its colour: curves that coincide (GrayDiff and
@@ -46,12 +62,17 @@ def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFram
 STYLES = [("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v"), ((0, (1, 2)), "P")]
 
 
-def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str) -> bool:
+def _draw_curves(
+    ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y: str,
+    styles: dict[str, int] | None = None,
+) -> bool:  # fmt: skip
     """Mean of ``y`` against ``x`` (from each run's history.json) per cell, with a min-max band;
-    False if no run has a point to draw. The figure puts the legend outside the panels
-    (:func:`_legend_outside`)."""
+    False if no run has a point to draw. ``styles``: each label's colour and line style, the
+    same in every panel of a figure (whose one legend names each label once; default: by order
+    here). The figure puts the legend outside the panels (:func:`_legend_outside`)."""
     drawn = False
     for k, (label, group) in enumerate(_cells(runs, labels)):
+        k = styles[label] if styles is not None else k
         series = [[(row[x], row[y]) for row in run_history(r) if y in row] for r in group["record"]]
         series = [s for s in series if s]
         if not series:
@@ -61,8 +82,8 @@ def _draw_curves(ax: plt.Axes, runs: pd.DataFrame, labels: list[str], x: str, y:
         ys = np.array([[p[1] for p in s[:n]] for s in series])  # (runs, points)
         line, marker = STYLES[k % len(STYLES)]
         ax.plot(xs, ys.mean(0), linestyle=line, marker=marker, markevery=max(1, n // 8),
-                markersize=4, label=f"{label} ({len(series)} runs)")  # fmt: skip
-        ax.fill_between(xs, ys.min(0), ys.max(0), alpha=0.15)
+                markersize=4, color=f"C{k % 10}", label=label)  # fmt: skip
+        ax.fill_between(xs, ys.min(0), ys.max(0), color=f"C{k % 10}", alpha=0.15)
         drawn = True
     return drawn
 
@@ -94,11 +115,12 @@ def _curve_panels(
     xlabel: str,
     ylabel: str,
 ) -> plt.Figure | None:
-    """One panel per value of ``panel`` (a game, a backbone), curves per cell in each."""
+    """One panel per value of ``panel`` (a data set, a backbone), curves per cell in each."""
     panels = sorted(runs[panel].dropna().unique())
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.5), squeeze=False)
+    styles = label_styles([runs[runs[panel] == p] for p in panels], labels)
     drawn = [
-        _draw_curves(ax, runs[runs[panel] == p], labels, x, y)
+        _draw_curves(ax, runs[runs[panel] == p], labels, x, y, styles)
         for ax, p in zip(axes[0], panels, strict=True)
     ]
     for ax, name, ok in zip(axes[0], panels, drawn, strict=True):
@@ -123,12 +145,13 @@ def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
             return None
         fig, axes = plt.subplots(2, len(games), figsize=(4.5 * len(games), 6), squeeze=False)
         drawn = []
+        styles = label_styles([done[done["game"] == game] for game in games], ["label"])
         for k, game in enumerate(games):
             runs_of_game = done[done["game"] == game]
-            drawn.append(
-                _draw_curves(axes[0, k], runs_of_game, ["label"], "env_steps", "train/score")
-            )
-            _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/trunk.1")
+            drawn.append(_draw_curves(
+                axes[0, k], runs_of_game, ["label"], "env_steps", "train/score", styles
+            ))  # fmt: skip
+            _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/trunk.1", styles)
             axes[0, k].set(title=game, xlabel="env steps", ylabel="mean score, last 20 episodes")
             axes[1, k].set(xlabel="env steps", ylabel="conv1 units dead (fraction)",
                            ylim=(-0.02, 1.02))  # fmt: skip
@@ -143,9 +166,10 @@ def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
 
 
 def fig10_kth_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    done = finished(runs, "kth", without_ablations)
+    """A panel per data set (generated, real clips split in time), a curve per cell."""
+    done = labelled(finished(runs, "kth", without_ablations))
     return done, lambda: _curve_panels(
-        done, "choices.backbone", ["choices.representation", "scale"], "epoch", "eval/accuracy",
+        done, "data.label", ["choices.backbone", "input", "scale"], "epoch", "eval/accuracy",
         "Figure 10: KTH test accuracy during training", "epoch", "test video accuracy",
     )  # fmt: skip
 
@@ -272,7 +296,7 @@ def _layer_names(layers: list[str]) -> list[str]:
 
 
 def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
-    labels = ["choices.backbone", "choices.representation", "scale"]
+    labels = ["choices.backbone", "input", "data.label", "scale"]
     layers, cells = _cell_means(done, "metrics.sparsity/", labels)
     if not layers or not cells:
         return None
@@ -289,7 +313,7 @@ def _sparsity(done: pd.DataFrame) -> plt.Figure | None:
 
 
 def fig11_activation_sparsity(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    done = finished(runs, "kth", without_ablations)
+    done = labelled(finished(runs, "kth", without_ablations))
     return done, lambda: _sparsity(done)
 
 

@@ -276,7 +276,7 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
         row = {label: group[label].iloc[0] for label in labels}
         row.update({key: group[key].iloc[0] for key in CELL_KEYS})
         for metric in metrics:
-            values = pd.to_numeric(group.get(metric), errors="coerce")
+            values = pd.to_numeric(group.get(metric, pd.Series(index=group.index)), errors="coerce")
             row[f"{metric}:mean"] = values.mean()
             row[f"{metric}:std"] = values.std(ddof=1) if len(values) > 1 else float("nan")
         row["runs"] = len(group)
