@@ -125,28 +125,33 @@ def test_table4_shows_real_clip_rows_beside_generated_ones_never_averaged() -> N
     from edr.report.published import load_published
     from edr.report.recognition import table4_kth
 
-    def runs(label: str | None, source: str, order: str | None, cell: str) -> list[dict]:
+    def runs(
+        label: str | None, source: str, order: str | None, cell: str, norm: bool | None = None
+    ) -> list[dict]:
         return [{"task": "kth", "status": "finished", "fingerprint": f"{cell}{seed}", "cell": cell,
                  "data.fingerprint": source, "data.source": source, "data.label": label,
-                 "data.frame_order": order, "scale": "demo", "seed": seed, "record": f"{cell}{seed}",
+                 "data.frame_order": order, "config.task.normalize_input": norm,
+                 "scale": "demo", "seed": seed, "record": f"{cell}{seed}",
                  "machine": "m", "git": "g", "choices.backbone": "lenet_ftrcn",
                  "choices.representation": "edr", "metrics.eval/accuracy": accuracy,
                  "metrics.eval/chance": 1 / 6}
                 for seed, accuracy in enumerate((0.5, 0.7))]  # fmt: skip
 
+    time_split = "real clips (8 videos), split in time"
     frame = pd.DataFrame(
         runs(None, "generated", None, "a")  # a record from before data.label
         + runs("real clips (8 videos), split in time", "real clips, split in time", "in order", "b")
         + runs("real clips (8 videos), split in time", "real clips, split in time", "shuffled", "c")
         + runs("real", "real", "in order", "d")  # the real data set, the paper's protocol
+        + runs(time_split, "real clips, split in time", "in order", "e", norm=True)
     )
     table = table4_kth(frame, load_published())
     shown = table.frame.set_index(["Data", "Representation"])
-    assert len(shown) == 4 and (shown["Runs (seeds)"] == "2 (0, 1)").all()
+    assert len(shown) == 5 and (shown["Runs (seeds)"] == "2 (0, 1)").all()
     assert (shown["Accuracy (%)"] == "60.0 ± 14.1").all()  # each cell its own two runs
-    time_split = "real clips (8 videos), split in time"
     assert shown.loc[(time_split, "edr"), "Published (%)"] == "—"
     assert shown.loc[(time_split, "edr (frames shuffled)"), "Published (%)"] == "—"
+    assert shown.loc[(time_split, "edr (standardised)"), "Published (%)"] == "—"
     assert shown.loc[("generated", "edr"), "Published (%)"] == "—"
     assert shown.loc[("real", "edr"), "Published (%)"] != "—"  # the paper's 94.4-row family
     assert any("not the paper's protocol" in note for note in table.notes)

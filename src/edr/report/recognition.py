@@ -43,12 +43,15 @@ def only_ablations(runs: pd.DataFrame) -> pd.DataFrame:
 def labelled(done: pd.DataFrame) -> pd.DataFrame:
     """``done`` with what a row of Table 2 or 4 is labelled by: ``data.label`` (the data's words,
     "real clips (8 videos), split in time"; older records: their source) and ``input`` (the
-    representation, "(frames shuffled)" where each clip's frames were)."""
+    representation, "(standardised)" where its input was, "(frames shuffled)" where each clip's
+    frames were)."""
     if done.empty:
         return done.assign(**{"data.label": None, "input": None})
     missing = pd.Series(None, index=done.index, dtype=object)
     representation = done["choices.representation"].astype(str)
     shuffled = done.get("data.frame_order", missing).eq("shuffled")
+    standardised = done.get("config.task.normalize_input", missing).eq(True)
+    representation = representation.where(~standardised, representation + " (standardised)")
     return done.assign(
         **{
             "data.label": done.get("data.label", missing).fillna(done["data.source"]),
@@ -62,7 +65,9 @@ SPLIT_IN_TIME_NOTE = (
     "(experiment=kth_real, ucf101_real), each video's first part for training and its last part "
     "for testing, a clip's length apart: not the paper's protocol, so no published number "
     "stands beside them; their accuracy is over test clips (several per video). "
-    "'(frames shuffled)': each clip's frames in a random order, what appearance alone gives."
+    "'(frames shuffled)': each clip's frames in a random order, what appearance alone gives. "
+    "'(standardised)': each input channel standardised before the backbone "
+    "(task.normalize_input=true)."
 )
 
 
