@@ -85,8 +85,10 @@ def faster_verdict(
     """One sentence on Figure 5a's "1.7x faster" (FDR+EDR reached 18 at 3M, FDR at 5M): judged
     at the highest score every run of both inputs reached, supported when every FDR+EDR run got
     there before every FDR run, contradicted when none did, undecided otherwise."""
+    paper = {inputs: f"{steps / 1e6:g}M" for inputs, steps in PAPER_STEPS_TO_18.items()}
     claim = (
-        "Figure 5a's \"1.7x faster\" (Pong's score 18 at 3M env steps with FDR+EDR, 5M with FDR)"
+        f"Figure 5a's \"1.7x faster\" (Pong's score 18 at {paper['fdr_edr']} env steps with "
+        f"FDR+EDR, {paper['fdr']} with FDR)"
     )
     common = [t for t in fdr if all(s is not None for s in (*fdr[t], *fdr_edr[t]))]
     if not common or min(len(fdr[common[-1]]), len(fdr_edr[common[-1]])) < 2:

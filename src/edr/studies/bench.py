@@ -286,8 +286,8 @@ def _parser() -> argparse.ArgumentParser:
         help="env steps of task=atari's training loop timed per backend (--atari; 0: skip)",
     )  # fmt: skip
     parser.add_argument(
-        "--network", default="none", choices=get_args(Core),
-        help="the training loop's core (--atari; task=atari's default: none, PAAC's feed-forward)",
+        "--network", default=None, choices=get_args(Core),
+        help="the training loop's core (--atari; default: task=atari's)",
     )  # fmt: skip
     parser.add_argument(
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"

@@ -45,25 +45,26 @@ BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl Pa
 
 def training_throughput(
     game: str, num_envs: int, backend: str, env_steps: int, inputs: str = "fdr_edr",
-    core: Core = "none",
+    core: Core | None = None,
 ) -> tuple[float, float, dict[str, float]]:  # fmt: skip
     """Env steps/s of ``task=atari``'s training loop (``inputs``: FDR RGB + EDR gray or FDR RGB;
-    ``core``: the network's, with one frame per step for ``lenet_ftlstm``; its defaults
-    otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
+    ``core``: the network's, the task's default if None, with one frame per step for
+    ``lenet_ftlstm``; its defaults otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
     bar shows them, and steady (from a quarter of the way on, after the first updates compiled
     the EDR kernels and warmed the allocator: what a run of hours sees); and where the steady
     part's time went, ms per update by phase (``time/*_ms`` of its history)."""
     from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings
     from edr.tasks.atari import HISTORY, train_paac
 
+    network = NetworkSettings() if core is None else NetworkSettings(core=core)
     with tempfile.TemporaryDirectory() as out_dir:
         env = EnvSettings(
             game=game, backend=backend, num_envs=num_envs, inputs=inputs,
             edr=EDR(color="gray") if inputs != "fdr" else None,
-            frame_stack=1 if core == "lenet_ftlstm" else TRAIN_FRAME_STACK,
+            frame_stack=1 if network.core == "lenet_ftlstm" else TRAIN_FRAME_STACK,
         )  # fmt: skip
         metrics = train_paac(
-            out_dir=Path(out_dir), seed=0, env=env, network=NetworkSettings(core=core),
+            out_dir=Path(out_dir), seed=0, env=env, network=network,
             env_steps=env_steps,
             evaluation=EvalSettings(plays=1, max_steps=1), checkpoint_every=10**9, logger=None,
         )  # fmt: skip
@@ -155,7 +156,10 @@ def atari_throughput(
 
 def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
     """The ``--atari`` mode of ``edr-bench``: a record per backend, then the cost table."""
+    from edr.rl.settings import NetworkSettings
+
     stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
+    core = args.network or NetworkSettings().core  # the record names the core it timed
     records = []
     for backend in args.backends.split(","):
         result = atari_throughput(
@@ -166,14 +170,14 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
             fps = (None, None, {})
             if args.train_frames:
                 fps = training_throughput(
-                    args.game, args.atari, backend, args.train_frames, inputs, args.network
+                    args.game, args.atari, backend, args.train_frames, inputs, core
                 )
             training[key], training[f"{key}_steady"], training[f"{key}_phases_ms"] = fps
         record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                   "game": args.game, "num_envs": args.atari, "backend": backend,
                   "obs_dtype": args.obs_dtype,
                   "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
-                  "train_frames": args.train_frames, "network": args.network, **training,
+                  "train_frames": args.train_frames, "network": core, **training,
                   "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
         name = f"atari_{backend}_{machine['hostname']}_{stamp}.json"
         records.append((write_json_atomic(args.out_dir / name, record), record))
