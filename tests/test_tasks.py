@@ -20,6 +20,7 @@ from edr.representations import DVSSimulator
 from edr.run import CONF_DIR, run
 from edr.tasks.recognition import load_model
 
+_evaluate = recognition.evaluate
 BACKBONES = sorted(p.stem for p in (Path(CONF_DIR) / "backbone").glob("*.yaml"))
 
 
@@ -35,7 +36,13 @@ def test_every_backbone_config_builds(compose_config, backbone: str) -> None:
     assert net(torch.zeros(1, 8, 2, 32, 32)).shape == (1, 6)
 
 
-def test_kth_tiny_run_writes_record_checkpoint_and_figures(compose_config, tmp_path, cache) -> None:
+def test_kth_tiny_run_writes_record_checkpoint_and_figures(
+    compose_config, tmp_path, cache, monkeypatch
+) -> None:
+    tests = []  # the test set's passes: one per epoch, the last one also the final metrics
+    monkeypatch.setattr(
+        recognition, "evaluate", lambda *a, **k: tests.append(a) or _evaluate(*a, **k)
+    )
     metrics = run(
         compose_config("task=kth", "debug=tiny", f"out_dir={tmp_path}", f"task.cache_dir={cache}")
     )
@@ -52,6 +59,7 @@ def test_kth_tiny_run_writes_record_checkpoint_and_figures(compose_config, tmp_p
     assert 0.9 < metrics["sparsity/representation"] <= 1.0
     history = json.loads((tmp_path / "history.json").read_text())
     assert [row["epoch"] for row in history] == [1, 2]
+    assert len(tests) == 2 and history[-1]["eval/accuracy"] == metrics["eval/accuracy"]
     for name in ("checkpoint.pt", "model.pt", "learning_curve.png", "confusion.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert (tmp_path / "logs").is_dir()  # torchrl's CSV logger

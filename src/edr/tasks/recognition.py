@@ -70,10 +70,15 @@ class Fitted(NamedTuple):
     metrics: dict[str, Any]
 
 
+class Tested(NamedTuple):
+    predicted: np.ndarray  # (videos,) class indices
+    true: np.ndarray  # (videos,)
+
+
 @torch.no_grad()
 def evaluate(
     model: nn.Module, dataset: ClipDataset, device: torch.device, batch_videos: int = 4
-) -> tuple[np.ndarray, np.ndarray]:
+) -> Tested:
     """(predicted, true) labels per video: argmax of the softmax averaged over its 10 crops."""
     model.eval()
     predicted, true = [], []
@@ -86,7 +91,7 @@ def evaluate(
         scores = logits.softmax(-1).view(b, n, -1).mean(1)
         predicted.append(scores.argmax(-1).cpu().numpy())
         true.append(labels.numpy())
-    return np.concatenate(predicted), np.concatenate(true)
+    return Tested(np.concatenate(predicted), np.concatenate(true))
 
 
 def load_model(run_dir: str | Path) -> RecognitionModel:
@@ -176,14 +181,16 @@ def fit_recognition(
 
     loader = functools.partial(_epoch_loader, train_set, clips_per_epoch, batch_size, num_workers)
     scalars = open_logger(logger, out_dir, step=len(history))
-    diverged = _epochs(
+    diverged, tested = _epochs(
         model, opt, scheduler, loader, test_set, dev, history, epochs, eval_every, scalars, save
     )
 
     # ---- final evaluation --------------------------------------------------------------------
     rebuild = {"online": online is not None, "input_norm": normalize_input,
                "backbone_args": backbone_args}  # fmt: skip
-    metrics = _finish(out_dir, model, train_set, test_set, dev, history, data.classes, rebuild)
+    metrics = _finish(
+        out_dir, model, train_set, test_set, dev, history, data.classes, rebuild, tested
+    )
     if diverged:  # what a network of NaNs predicts is no accuracy
         metrics["eval/accuracy"] = float("nan")
     data_part = data.metrics(data_root, synthetic, test_set, shuffle_frames)
@@ -244,11 +251,12 @@ def _epochs(
     loader: Callable[[], DataLoader], test_set: ClipDataset, dev: torch.device,
     history: list[dict[str, float]], epochs: int, eval_every: int, scalars: Any,
     save: Callable[[], None],
-) -> dict[str, Any]:  # fmt: skip
+) -> _Trained:  # fmt: skip
     """Train from epoch ``len(history)`` to ``epochs``, a row of ``history`` and a checkpoint
-    per epoch; where the training diverged if it did (empty if not)."""
+    per epoch; where the training diverged if it did, and the last epoch's test predictions."""
     dead_units = DeadUnits(model)  # whether the network stays alive, per epoch
     online = model.representation
+    tested = None
     for epoch in range(len(history), epochs):
         dead_units.reset()
         row, diverged = _train_epoch(model, opt, loader(), dev, epoch, epochs)
@@ -258,32 +266,39 @@ def _epochs(
                 "recorded as diverged",
                 epoch + 1, diverged["train/diverged_step"], diverged["train/diverged_reason"],
             )  # fmt: skip
-            return diverged
+            return _Trained(diverged, None)
         row.update(dead_units.fractions())  # units that fired on no training clip of the epoch
         row.update(_learned(online))  # a learnable EDR's half-lives, betas and nus, by epoch
         row["train/lr"] = opt.param_groups[0]["lr"]
         scheduler.step()
         if (epoch + 1) % eval_every == 0 or epoch + 1 == epochs:
-            predicted, true = evaluate(model, test_set, dev)
-            row["eval/accuracy"] = float((predicted == true).mean())
+            tested = evaluate(model, test_set, dev)
+            row["eval/accuracy"] = float((tested.predicted == tested.true).mean())
         history.append(row)
         if scalars is not None:
             for key, value in row.items():
                 if key != "epoch":
                     scalars.log_scalar(key, value, step=epoch + 1)
         save()
-    return {}
+    return _Trained({}, tested)
+
+
+class _Trained(NamedTuple):
+    diverged: dict[str, Any]  # where the training diverged (empty if it did not)
+    tested: (
+        Tested | None
+    )  # the final epoch's test, if this call ran it (the model is unchanged since)
 
 
 def _finish(
     out_dir: Path, model: RecognitionModel, train_set: ClipDataset, test_set: ClipDataset,
     dev: torch.device, history: list[dict[str, float]], classes: list[str],
-    rebuild: dict[str, Any],
+    rebuild: dict[str, Any], tested: Tested | None,
 ) -> dict[str, Any]:  # fmt: skip
-    """The final test with 10 crops, the activations' sparsity on a few training clips, and
-    the files a run leaves (``model.pt`` with ``rebuild``, history, confusion, figures); the
-    record's test, training and model metrics."""
-    predicted, true = evaluate(model, test_set, dev)
+    """The final test with 10 crops (``tested``, the last epoch's, when given), the activations'
+    sparsity on a few training clips, and the files a run leaves (``model.pt`` with
+    ``rebuild``, history, confusion, figures); the record's test, training and model metrics."""
+    predicted, true = tested if tested is not None else evaluate(model, test_set, dev)
     scores, confusion = classification_metrics(predicted, true, classes)
     probe = torch.stack([train_set[i][0] for i in range(min(4, len(train_set)))]).to(dev)
     model.eval()
