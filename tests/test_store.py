@@ -99,6 +99,25 @@ def test_a_record_from_before_the_folders_had_symbols_is_the_same_run(
         plan_attempt(tmp_path, fingerprint, semantic, "auto")
 
 
+def test_raw_input_runs_from_before_standardised_became_the_default_keep_their_identity(
+    compose_config, tmp_path
+) -> None:
+    """task.normalize_input came in false and became true: a raw run's identity is the one it
+    had without the key, and a record that holds the key at false (experiment=kth_real's
+    first sweep) is that same run, skipped, not refused."""
+    raw = run_identity(compose_config("task=kth", "task.normalize_input=false"))
+    before = run_identity(compose_config("task=kth", "~task.normalize_input"))
+    assert raw[1:] == before[1:]  # fingerprint and cell
+    assert run_identity(compose_config("task=kth"))[1] != raw[1]  # standardised: another run
+    semantic, fingerprint, _ = run_identity(compose_config("experiment=kth_real"))
+    held = json.loads(json.dumps(semantic))
+    held["task"]["normalize_input"] = False
+    record = {"status": "finished", "fingerprint": "with the key", "semantic_config": held,
+              "metrics": {"eval/accuracy": 0.5}}  # fmt: skip
+    (tmp_path / "run.json").write_text(json.dumps(record))
+    assert plan_attempt(tmp_path, fingerprint, semantic, "auto").action == "skip"
+
+
 def test_job_folder_names_come_from_semantic_overrides() -> None:
     name = job_dirname(["seed=1", "task=kth", "threads=2", "resume=true", "task.logger=", "+x.y=1"])
     assert name == "seed=1,task=kth,x.y=1"

@@ -149,9 +149,9 @@ def test_table4_shows_real_clip_rows_beside_generated_ones_never_averaged() -> N
     shown = table.frame.set_index(["Data", "Representation"])
     assert len(shown) == 5 and (shown["Runs (seeds)"] == "2 (0, 1)").all()
     assert (shown["Accuracy (%)"] == "60.0 ± 14.1").all()  # each cell its own two runs
-    assert shown.loc[(time_split, "edr"), "Published (%)"] == "—"
-    assert shown.loc[(time_split, "edr (frames shuffled)"), "Published (%)"] == "—"
-    assert shown.loc[(time_split, "edr (standardised)"), "Published (%)"] == "—"
-    assert shown.loc[("generated", "edr"), "Published (%)"] == "—"
-    assert shown.loc[("real", "edr"), "Published (%)"] != "—"  # the paper's 94.4-row family
+    assert shown.loc[(time_split, "edr (raw input)"), "Published (%)"] == "—"
+    assert shown.loc[(time_split, "edr (raw input, frames shuffled)"), "Published (%)"] == "—"
+    assert shown.loc[(time_split, "edr"), "Published (%)"] == "—"  # standardised: the default
+    assert shown.loc[("generated", "edr (raw input)"), "Published (%)"] == "—"
+    assert shown.loc[("real", "edr (raw input)"), "Published (%)"] != "—"  # the 94.4-row family
     assert any("not the paper's protocol" in note for note in table.notes)

@@ -43,19 +43,26 @@ def only_ablations(runs: pd.DataFrame) -> pd.DataFrame:
 def labelled(done: pd.DataFrame) -> pd.DataFrame:
     """``done`` with what a row of Table 2 or 4 is labelled by: ``data.label`` (the data's words,
     "real clips (8 videos), split in time"; older records: their source) and ``input`` (the
-    representation, "(standardised)" where its input was, "(frames shuffled)" where each clip's
-    frames were)."""
+    representation, qualified "raw input" where it reached the backbone unstandardised, as in
+    every record before ``task.normalize_input`` became the default, and "frames shuffled"
+    where each clip's frames were)."""
     if done.empty:
         return done.assign(**{"data.label": None, "input": None})
     missing = pd.Series(None, index=done.index, dtype=object)
-    representation = done["choices.representation"].astype(str)
+    raw = ~done.get("config.task.normalize_input", missing).eq(True)
     shuffled = done.get("data.frame_order", missing).eq("shuffled")
-    standardised = done.get("config.task.normalize_input", missing).eq(True)
-    representation = representation.where(~standardised, representation + " (standardised)")
+    qualifiers = pd.Series(
+        [", ".join(q for q, on in (("raw input", r), ("frames shuffled", s)) if on)
+         for r, s in zip(raw, shuffled, strict=True)],
+        index=done.index,
+    )  # fmt: skip
+    representation = done["choices.representation"].astype(str)
     return done.assign(
         **{
             "data.label": done.get("data.label", missing).fillna(done["data.source"]),
-            "input": representation.where(~shuffled, representation + " (frames shuffled)"),
+            "input": representation.where(
+                qualifiers == "", representation + " (" + qualifiers + ")"
+            ),
         }
     )
 
@@ -66,8 +73,9 @@ SPLIT_IN_TIME_NOTE = (
     "for testing, a clip's length apart: not the paper's protocol, so no published number "
     "stands beside them; their accuracy is over test clips (several per video). "
     "'(frames shuffled)': each clip's frames in a random order, what appearance alone gives. "
-    "'(standardised)': each input channel standardised before the backbone "
-    "(task.normalize_input=true)."
+    "'raw input': the representation reached the backbone as computed "
+    "(task.normalize_input=false, as every record before 2026-12-03 ran); without it, each input "
+    "channel was standardised first (the default since)."
 )
 
 

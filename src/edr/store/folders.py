@@ -41,6 +41,7 @@ from edr.store.identity import (
     is_semantic_override,
     warn_ignored,
     with_root_symbols,
+    without_added_defaults,
 )
 from edr.store.records import RECORD_NAME, now, read_record
 from edr.validate import ConfigError, path_problem
@@ -96,10 +97,11 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
         return Plan("run", record)
     if record is not None and record.get("fingerprint") != fingerprint:
         # what can change a result (a record from before the fingerprint kept only these keys
-        # holds the whole config, and one from before the roots had symbols holds its machine's
-        # folders: the same run if these agree)
+        # holds the whole config, one from before the roots had symbols holds its machine's
+        # folders, and one from before an ADDED_DEFAULTS entry holds that key at its old value:
+        # the same run if these agree)
         old = {k: v for k, v in record.get("semantic_config", {}).items() if k in IDENTITY_KEYS}
-        old = with_root_symbols(old, _roots(record))
+        old = without_added_defaults(with_root_symbols(old, _roots(record)))
         if old == semantic:
             return _plan_for_this_config({**record, "fingerprint": fingerprint}, checkpoint,
                                          resume, out_dir)  # fmt: skip

@@ -46,6 +46,7 @@ PACKAGED_INTO = {"ablation": "representation"}
 # a setting to the config with its default keeps old runs' identities.
 ADDED_DEFAULTS: dict[str, dict[str, Any]] = {
     "edr.rl.settings.NetworkSettings": {"input_norm": "raw"},
+    "edr.tasks.recognition.train_recognition": {"normalize_input": False},
     "edr.representations.EDR": {
         "parameterization": "log",
         "bptt_window": None,

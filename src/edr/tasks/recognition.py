@@ -137,7 +137,7 @@ def fit_recognition(
     gamma: PositiveFloat = 0.1,
     eval_every: PositiveInt = 1,
     shuffle_frames: bool = False,
-    normalize_input: bool = False,
+    normalize_input: bool = True,
     resume: bool = False,
     logger: LoggerName = "csv",
     device: Device = "auto",
