@@ -2,8 +2,9 @@
 Slurm section and docs/events.md (their fenced ``bash`` blocks) runs as written, at ``debug=tiny``, in a temporary
 folder: a command that stops working fails CI.
 
-How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, the first value of
-each axis its experiment file sweeps and the command does not set (one cell per grid axis);
+How a command is made small: ``edr-run`` gets ``debug=tiny`` and, in a sweep, one cell: the first
+value of each axis the command lists (every cell of its lists is composed and built, not run) and
+of each axis its experiment file sweeps and the command does not set;
 ``/data/...`` paths become small data the test generates in that data set's layout, and so do
 the real clips of ``../shared/real-video`` (``EDR_REAL_VIDEO``), long enough to split in time;
 ``../shared/events/`` the real recordings beside the repository (skipped when absent);
@@ -24,6 +25,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
+from cells import assert_builds, grid, listed
 from cluster import LOCAL_CLUSTER, slurm_environment
 from edr.data.synthetic import write_synthetic_kth, write_synthetic_ucf101
 from edr.data.video import write_video
@@ -81,6 +83,18 @@ def _substituted(word: str, data: dict[str, str]) -> str:
     return f"{key}={data[value]}" if equals and value in data else word
 
 
+def _first_value(word: str) -> str:
+    return word.split(",", 1)[0] if listed(word) else word
+
+
+def listed_cells(words: list[str], data: dict[str, str]) -> list[list[str]]:
+    """Every cell of an ``edr-run -m`` command's own lists, as overrides (none if it lists none)."""
+    args = [_substituted(w, data) for w in words[1:] if w != "-m"]
+    if words[0] != "edr-run" or "-m" not in words or not any(map(listed, args)):
+        return []
+    return grid(args)
+
+
 def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
     """The command made small (see the module's docstring)."""
     words = [w.replace("../shared/events/", f"{SHARED_EVENTS}/") for w in words]
@@ -88,8 +102,9 @@ def tiny(words: list[str], data: dict[str, str], tmp: Path) -> list[str]:
     if program == "edr-run" and not {"--help", "--cfg"} & set(args):
         args = [*args, "debug=tiny"] if "debug=tiny" not in args else args
         if "-m" in args:
+            args = [_first_value(a) for a in args]  # one cell of the command's own lists
             given = {a.split("=", 1)[0] for a in args if "=" in a}
-            plain = [a for a in args if a != "-m" and "," not in a]  # a swept axis: its own
+            plain = [a for a in args if a != "-m"]
             args += [f"{k}={v}" for k, v in _sweep_axes(plain).items() if k not in given]
     elif program == "edr-bench":
         args = [*args, *BENCH_TINY, "--out-dir", str(tmp / "results" / "bench")]
@@ -120,6 +135,8 @@ def test_every_documented_command_runs(document: str, cli, tmp_path) -> None:
             if slurm is None:
                 continue  # no cluster here (see the module's docstring)
             env.update(slurm)  # SLURM_CONF, where the local cluster's is not set
+        for cell in listed_cells(words, data):
+            assert_builds(cell)
         command = tiny(words, data, tmp_path)
         result = cli(*command, cwd=tmp_path, env=env)
         shown = shlex.join(words)
