@@ -155,3 +155,27 @@ def test_table4_shows_real_clip_rows_beside_generated_ones_never_averaged() -> N
     assert shown.loc[("generated", "edr (raw input)"), "Published (%)"] == "—"
     assert shown.loc[("real", "edr (raw input)"), "Published (%)"] != "—"  # the 94.4-row family
     assert any("not the paper's protocol" in note for note in table.notes)
+
+
+def test_the_learnable_blocks_fdr_control_is_the_run_on_edrs_own_data() -> None:
+    """A newer run of the same FDR config on other data (speed classes generated again by later
+    code) belongs to Table 2, not to the learnable-EDR block, whose control ran on EDR's data."""
+    import pandas as pd
+
+    from edr.report.recognition import learnable_runs
+
+    def run(ablation: str | None, representation: str, data: str, ended: str) -> dict:
+        fingerprint = f"{ablation}-{representation}"  # one config: one fingerprint
+        return {"task": "ucf101", "status": "finished", "fingerprint": fingerprint, "seed": 0,
+                "choices.ablation": ablation, "choices.representation": representation,
+                "data.fingerprint": data, "scale": "demo", "choices.backbone": "lenet_ftrcn",
+                "ended_at": ended, "record": f"{fingerprint}-{ended}"}  # fmt: skip
+
+    frame = pd.DataFrame([
+        run("learnable_log", "edr", "old data", "2026-12-02"),
+        run(None, "fdr", "old data", "2026-12-02"),
+        run(None, "fdr", "new data", "2026-12-03"),  # the same config, later, on other data
+    ])  # fmt: skip
+    chosen = learnable_runs(frame)
+    control = chosen[chosen["choices.ablation"] == "fdr"]
+    assert list(control["data.fingerprint"]) == ["old data"]

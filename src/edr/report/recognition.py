@@ -359,13 +359,19 @@ def learnable_runs(runs: pd.DataFrame) -> pd.DataFrame:
         edr = done[done["choices.ablation"].isin(list(LEARNABLE))] if not done.empty else done
         if edr.empty or not edr["choices.ablation"].str.startswith("learnable").any():
             continue
-        plain = finished(runs, task, without_ablations)
-        fdr = plain[
-            (plain["choices.representation"] == "fdr")
-            & plain["data.fingerprint"].isin(set(edr["data.fingerprint"]))
-            & plain["scale"].isin(set(edr["scale"]))
-            & plain["choices.backbone"].isin(set(edr["choices.backbone"]))
-        ]
+
+        def control(plain: pd.DataFrame, edr: pd.DataFrame = edr) -> pd.DataFrame:
+            """FDR on the very data EDR had (selected before the newest of one fingerprint is
+            kept: a later run of the same config on other data is another table's)."""
+            plain = without_ablations(plain)
+            return plain[
+                (plain["choices.representation"] == "fdr")
+                & plain["data.fingerprint"].isin(set(edr["data.fingerprint"]))
+                & plain["scale"].isin(set(edr["scale"]))
+                & plain["choices.backbone"].isin(set(edr["choices.backbone"]))
+            ]
+
+        fdr = finished(runs, task, control)
         parts += [fdr.assign(**{"choices.ablation": "fdr"}), edr]
     return pd.concat(parts) if parts else runs.iloc[:0]
 
