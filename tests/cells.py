@@ -25,15 +25,16 @@ def grid(overrides: Iterable[str]) -> list[list[str]]:
     return [list(cell) for cell in itertools.product(*axes)]
 
 
-def assert_builds(overrides: list[str]) -> None:
-    """The cell composes, its representation builds and, for a recognition task, its backbone
+def assert_builds(cells: Iterable[list[str]]) -> None:
+    """Each cell composes, its representation builds and, for a recognition task, its backbone
     builds for that representation's input."""
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=overrides)
-    representation = instantiate(cfg.representation)
-    if "crop" in cfg.task:  # a recognition task
-        net = instantiate(cfg.backbone)(
-            in_channels=representation.out_channels(1 if cfg.task.gray else 3),
-            num_classes=6, frames=8, height=cfg.task.crop, width=cfg.task.crop,
-        )  # fmt: skip
-        assert sum(p.numel() for p in net.parameters()) > 0, overrides
+        for overrides in cells:
+            cfg = compose(config_name="config", overrides=overrides)
+            representation = instantiate(cfg.representation)
+            if "crop" in cfg.task:  # a recognition task
+                net = instantiate(cfg.backbone)(
+                    in_channels=representation.out_channels(1 if cfg.task.gray else 3),
+                    num_classes=6, frames=8, height=cfg.task.crop, width=cfg.task.crop,
+                )  # fmt: skip
+                assert sum(p.numel() for p in net.parameters()) > 0, overrides

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -416,9 +417,10 @@ def test_resuming_on_changed_data_is_refused(compose_config, tmp_path, kth_copy,
 def test_a_learnable_edr_whose_values_blow_up_is_recorded_as_diverged(
     compose_config, tmp_path, cache, parameterization
 ) -> None:
-    """Adam at lr 1e6: the first step throws EDR's values out of their ranges (log: beta and
-    the nus far out, then NaN; bounded: beta underflows to 0, the nus saturate at 1) while the
-    loss is still a number. Recorded as diverged at that step, with the value that left."""
+    """Adam at lr 1e6: the first step throws EDR's values out of their ranges (beta past the
+    largest that float32 holds, or a value out of its range, depending on the input's scale
+    reaching the backbone) while the loss is still a number. Recorded as diverged at that step,
+    with the value that left."""
     metrics = run(compose_config(
         *TINY_KTH, "representation.learnable=true", "optimizer=adam", "optimizer.lr=1e6",
         f"representation.parameterization={parameterization}", f"task.cache_dir={cache}",
@@ -426,7 +428,8 @@ def test_a_learnable_edr_whose_values_blow_up_is_recorded_as_diverged(
     ))  # fmt: skip
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["status"] == "finished" and metrics["train/diverged_step"] == 1
-    assert "left its range" in metrics["train/diverged_reason"]
+    reason = metrics["train/diverged_reason"]
+    assert "left its range" in reason or re.match(r"beta=\S+: expected at most 16", reason), reason
     assert np.isnan(metrics["eval/accuracy"])
 
 

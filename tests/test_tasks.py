@@ -228,8 +228,8 @@ def test_every_cell_of_every_experiment_composes(experiment: str) -> None:
             config_name="config", overrides=[f"experiment={experiment}"], return_hydra_config=True
         )
     params = base.hydra.sweeper.params or {}
-    for cell in grid(f"{k}={v}" for k, v in params.items() if k != "seed"):
-        assert_builds([f"experiment={experiment}", *cell])
+    cells = grid(f"{k}={v}" for k, v in params.items() if k != "seed")
+    assert_builds([f"experiment={experiment}", *cell] for cell in cells)
 
 
 def test_dvs_transfer_resumes_without_training_its_network_again(
