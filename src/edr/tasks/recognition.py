@@ -285,9 +285,8 @@ def _epochs(
 
 class _Trained(NamedTuple):
     diverged: dict[str, Any]  # where the training diverged (empty if it did not)
-    tested: (
-        Tested | None
-    )  # the final epoch's test, if this call ran it (the model is unchanged since)
+    # the final epoch's test, if this call ran it (the model is unchanged since)
+    tested: Tested | None
 
 
 def _finish(
