@@ -69,7 +69,7 @@ def test_unknown_representation_is_a_clear_error(cli, tmp_path) -> None:
 @pytest.mark.slow
 def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> None:
     bench.main(
-        ["--atari", "2", "--steps", "3", "--repeats", "2", "--warmup", "0",
+        ["--atari", "1", "--steps", "3", "--repeats", "2", "--warmup", "0",
          "--train-frames", "40", "--network", "lenet_ftlstm", "--out-dir", str(tmp_path / "bench")]
     )  # fmt: skip
     paths = {p.name.split("_")[1]: p for p in (tmp_path / "bench").glob("atari_*.json")}
@@ -83,7 +83,7 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
         "Pong: FDR RGB, float32",
         "Pong: FDR RGB + EDR gray, float32",
     ]
-    assert all(row["fps"] > 0 and row["frames"] == 6 for row in record["rows"])
+    assert all(row["fps"] > 0 and row["frames"] == 3 for row in record["rows"])  # steps x envs
     assert len(record["costs"]) == 2 and record["cost"] == statistics.median(record["costs"])
     assert all(ms > 0 for ms in record["main_cpu_ms"])
     assert "EDR costs" in capsys.readouterr().out
@@ -100,7 +100,7 @@ def test_atari_bench_pairs_rollouts_and_writes_a_record(tmp_path, capsys) -> Non
     )
     text = (tmp_path / "paper" / "atari_edr_cost.md").read_text()
     (row,) = [line for line in text.splitlines() if record_path.name in line]
-    assert row.startswith("| Pong | envpool | 2 | 1 | float32 |")
+    assert row.startswith("| Pong | envpool | 1 | 1 | float32 |")
     assert f"{record['cost']:.1f} %" in row and f"{record['train_fps']:,.0f} over 40" in row
     assert f"{record['train_fps_steady']:,.0f} steady" in row and "| lenet_ftlstm |" in row
     assert record["train_fps_fdr"] > 0 and record["train_fps_fdr_steady"] > 0

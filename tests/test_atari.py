@@ -207,7 +207,8 @@ def test_the_readmes_own_game_command_runs(cli, tmp_path) -> None:
     """A gymnasium env of your own, as the README writes it (the catching game of the tests)."""
     from pathlib import Path
 
-    own = ("task=atari", "task.env.preset=none", "task.env.env_id=EdrCatch-v0", "debug=tiny")
+    own = ("task=atari", "task.env.preset=none", "task.env.env_id=EdrCatch-v0", "debug=tiny",
+           "task.env_steps=400", "task.evaluation.max_steps=20")  # fmt: skip
     tests = str(Path(__file__).parent)
     result = cli("edr-run", *own, "task.env.env_module=catch_game", cwd=tmp_path,
                  env={"PYTHONPATH": tests})  # fmt: skip
@@ -223,23 +224,20 @@ def test_the_readmes_own_game_command_runs(cli, tmp_path) -> None:
 
 @pytest.mark.learning
 def test_the_first_convolution_stays_alive_on_pong(compose_config, tmp_path) -> None:
-    """Pong with the Table 1 defaults, 20 updates (3,200 env steps), both inputs, 2 seeds:
-    conv1's dead fraction is set within the first 10-20 updates. Seed 0 after 20 updates: with
-    Adam 7e-4 (the old default) 75 % (FDR) and 56 % (FDR+EDR) of its units were dead (75-100 %
-    after 300), with the defaults (PAAC's RMSprop, fan_in init) 25 % and 6 % (6-25 % after 300;
-    results/learning/README.md)."""
+    """Pong with the Table 1 defaults, 20 updates (3,200 env steps), both inputs, seed 0: a
+    diagnostic beside the learning tests (tests/test_rl_learning.py), not a choice of defaults.
+    conv1's dead fraction is set within the first 10-20 updates. Measured 2026-12-03 (seeds 0
+    and 1): the defaults (batch-normed frames, Adam 7e-4) 0 of 16 units dead with either input;
+    the same with raw frames (``input_norm=raw``) 62-88 % dead, which this test fails on."""
     dead = []
     for inputs in ("fdr", "fdr_edr"):
-        for seed in (0, 1):
-            out = tmp_path / f"{inputs}_{seed}"
-            metrics = run(compose_config(
-                "experiment=table1_atari", "game=pong", f"task.env.inputs={inputs}",
-                f"seed={seed}", "task.env_steps=3200", "task.evaluation.plays=1",
-                "task.evaluation.max_steps=1", "task.logger=", f"out_dir={out}",
-            ))  # fmt: skip
-            dead.append(metrics["dead/trunk.1"])
-    assert max(dead) <= 6 / 16, dead  # no run lost more than 6 of its 16 units
-    assert np.mean(dead) <= 1 / 4, dead
+        metrics = run(compose_config(
+            "experiment=table1_atari", "game=pong", f"task.env.inputs={inputs}", "seed=0",
+            "task.env_steps=3200", "task.evaluation.plays=1", "task.evaluation.max_steps=1",
+            "task.logger=", f"out_dir={tmp_path / inputs}",
+        ))  # fmt: skip
+        dead.append(metrics["dead/trunk.1"])
+    assert max(dead) <= 4 / 16, dead  # no run lost more than 4 of its 16 units
 
 
 def test_the_screening_table_reads_scores_and_first_steps_from_a_history(tmp_path) -> None:

@@ -114,7 +114,7 @@ class DVSSimulator:
         self.threshold_on, self.threshold_off = threshold_on, threshold_off
         self.mismatch, self.refractory_us, self.shot_noise_hz = (
             mismatch,
-            refractory_us,
+            float(refractory_us),  # one compiled ``_crossings``, whether the config wrote 0 or 0.0
             shot_noise_hz,
         )
         self.fps, self.eps, self.seed = fps, eps, seed

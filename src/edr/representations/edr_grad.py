@@ -269,7 +269,7 @@ class FusedEDRFunction(torch.autograd.Function):
         kernels.launch(
             backward_kernel, b * t * p * c, *_source(frames, gray, eps, dtype), *params,
             log_form, sum_k, window,
-            grad_out.to(dtype).numpy(),  # as it comes: a sum's is one broadcast value
+            grad_out.to(dtype).contiguous().numpy(),  # one layout, one compiled kernel
             want_input, grad_in.numpy(),
             g_alpha.numpy(), g_beta.numpy(), g_on.numpy(), g_off.numpy(),
         )  # fmt: skip
