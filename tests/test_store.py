@@ -261,10 +261,11 @@ def test_one_writer_per_run_folder(cli, tmp_path) -> None:
     assert [s.split(",")[0] for s in steps] == ["1", "2", "3", "4", "5", "6"]  # one writer
 
     (folder / LOCK).write_text(json.dumps({"host": socket.gethostname(), "pid": 2**22 + 7}))
-    again = cli(*["edr-run", *args[1:], "resume=false"], cwd=tmp_path,
-                env={"EDR_CACHE": str(tmp_path / "cache")})  # fmt: skip
+    again = cli(*["edr-run", *args[1:]], cwd=tmp_path, env={"EDR_CACHE": str(tmp_path / "cache")})
     assert again.returncode == 0, again.stderr[-2000:]
-    assert "taking over the lock of a process that is gone" in again.stdout + again.stderr
+    said = again.stdout + again.stderr
+    assert "taking over the lock of a process that is gone" in said  # then skips the finished run
+    assert "finished already with this config: skipped" in said and not (folder / LOCK).exists()
 
 
 def test_a_running_record_whose_process_is_gone_reads_as_interrupted(tmp_path) -> None:
