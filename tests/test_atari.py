@@ -118,6 +118,46 @@ def test_batchnorm_folded_into_the_first_conv_is_batchnorm_then_the_conv(
     assert net.normalise.num_batches_tracked == reference.normalise.num_batches_tracked
 
 
+def test_frames_seen_one_step_before_reuse_their_batch_statistics(monkeypatch) -> None:
+    """Acting as the Actor does (the stack moves on by one frame a step): the same logits,
+    values and running statistics, bit for bit, as computing every frame's statistics at every
+    step; 4 frames' passes at the first step, 1 after; a frame written by torch since, or one
+    that needs a gradient, is passed over again."""
+    import edr.models.paac as paac
+
+    torch.manual_seed(0)
+    net = PAACNetwork(20, 6, "none", input_norm="batchnorm", frames=4)
+    fresh = copy.deepcopy(net)
+    passes = {"n": 0}
+    counted = paac.batch_statistics
+
+    def counting(frame):
+        passes["n"] += 1
+        return counted(frame)
+
+    monkeypatch.setattr(paac, "batch_statistics", counting)
+    state, first = torch.zeros(8, 1), torch.zeros(8, 1, dtype=torch.bool)
+    stream = [torch.rand(8, 5, 84, 84) for _ in range(7)]
+    for t in range(4):
+        frames = stream[t : t + 4]
+        before = passes["n"]
+        ours = net(frames, state, state, first)
+        assert passes["n"] - before == (4 if t == 0 else 1)
+        fresh._last_statistics = {}  # every frame's statistics, every step
+        theirs = fresh(frames, state, state, first)
+        for a, b in zip(ours[:2], theirs[:2], strict=True):
+            assert torch.equal(a, b)
+        assert torch.equal(net.normalise.running_var, fresh.normalise.running_var)
+    stream[5].mul_(2)  # a torch write: of the 4 frames seen last step, only it passes again
+    before = passes["n"]
+    net(stream[3:7], state, state, first)
+    assert passes["n"] - before == 1
+    needs_grad = [f.clone().requires_grad_() for f in stream[3:7]]
+    before = passes["n"]
+    net(needs_grad, state, state, first)[0].sum().backward()
+    assert passes["n"] - before == 4 and needs_grad[0].grad is not None
+
+
 def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -> None:
     """Runs recorded before task.network.input_norm existed (raw frames, its value then) keep
     their identity; another value is another run."""
