@@ -480,7 +480,7 @@ def test_an_empty_results_variable_is_not_the_current_folder(variable, monkeypat
 
 @pytest.mark.slow
 def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(tmp_path) -> None:
-    result = _edr_run("-m", "task=representation_demo", "debug=tiny", "seed=0,-1",
+    result = _edr_run("-m", "task=event_camera", "debug=tiny", "seed=0,-1",
                       f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=tmp_path)  # fmt: skip
     output = result.stdout + result.stderr
     assert result.returncode == 1, output[-3000:]
