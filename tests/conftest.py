@@ -34,7 +34,9 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Under ``--dist loadgroup`` (make test), xdist has named each grouped test after its group by
     now; where it could not, the groups would run on every worker (the paper's tiny sweeps twice):
-    say so instead of running."""
+    say so instead of running. Then the longest work first (the groups, whose first test builds
+    a shared fixture of minutes, then the slow and learning tests), so that no worker starts
+    the paper's tiny sweeps while the others run out of tests."""
     if not getattr(config.option, "loadgroup", False):
         return
     lost = [i.nodeid for i in items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
@@ -43,6 +45,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             f"pytest-xdist's --dist loadgroup did not group {lost[0]} (and {len(lost) - 1} more) "
             f"under pytest {pytest.__version__}: install pyproject.toml's pytest (make setup)"
         )
+    items.sort(key=lambda item: (  # a stable sort: the collection's order within each rank
+        not item.get_closest_marker("xdist_group"),
+        not (item.get_closest_marker("slow") or item.get_closest_marker("learning")),
+    ))  # fmt: skip
 
 
 @pytest.fixture
