@@ -245,17 +245,16 @@ class PAACNetwork(nn.Module):
         frame, so 3 of 4 were seen. "Saw": the same memory, shape and strides, no torch write
         since (its version) and no gradient. A frame the env rewrites in place outside torch
         must have left the stack first, as the env's frame ring guarantees (``ObservationFrame``)."""
-        known, statistics = dict(self._last_statistics), []
+        last, kept, statistics = self._last_statistics, {}, []
         for frame in frames:
             if frame.requires_grad:  # its statistics carry a gradient: never shared
                 statistics.append(batch_statistics(frame))
                 continue
             key = _frame_key(frame)
-            if key not in known:
-                known[key] = batch_statistics(frame)
-            statistics.append(known[key])
-        self._last_statistics = {_frame_key(f): s for f, s in zip(frames, statistics, strict=True)
-                                 if not f.requires_grad}  # fmt: skip
+            if key not in kept:
+                kept[key] = last.get(key) or batch_statistics(frame)
+            statistics.append(kept[key])
+        self._last_statistics = kept
         self._last_frames = frames  # their memory stays theirs while the keys name it
         return statistics
 
