@@ -239,3 +239,16 @@ def test_one_pass_frame_equals_fdr_and_edr_step_by_torch(mode: str, fdr: str, ed
         pixels = rollout["next", "pixels"].permute(0, 1, 4, 2, 3).float() / 255
         torch.testing.assert_close(frames[0][:, :6, :3], pixels, rtol=0, atol=0)
     assert frames[0][:, 1:, -2:].abs().sum() > 0 or edr is None  # the events of moving things
+
+
+def test_a_closed_env_leaves_torchs_thread_count_as_it_found_it(monkeypatch) -> None:
+    """torchrl's batched envs add their workers to torch's threads on close, up to the count
+    torch had when torchrl was imported: a run's ``threads=1`` became 2 for its evaluation."""
+    import torchrl
+
+    threads = torch.get_num_threads()
+    monkeypatch.setattr(torchrl, "_THREAD_POOL_INIT", threads + 4)  # torch started with more
+    env = make_atari_env(game="Pong", num_envs=2, backend="serial", fdr="gray")
+    env.reset()
+    env.close()
+    assert torch.get_num_threads() == threads

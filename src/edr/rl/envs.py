@@ -248,6 +248,37 @@ class EnvPoolAtari(EnvBase):
         super().close(raise_if_closed=raise_if_closed)
 
 
+class _KeepsTorchThreads:
+    """Leaves torch's thread count, once the env is closed, as it was when the env was made.
+
+    torchrl's batched envs change it: a ``ParallelEnv`` takes its workers' count off the main
+    process's threads while it runs, and closing either kind adds the workers' count back, up
+    to the count torch had when torchrl was imported. A closed ``SerialEnv`` of 4 envs thus
+    raised ``threads=1`` to 2 for the rest of the run: the evaluation after training then ran
+    2 threads where another job held a core, each op waiting on the other thread (a tiny Pong
+    run, ``debug=tiny``, took 32 s instead of 21, and its test 64-67 s instead of 26).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        threads = torch.get_num_threads()
+        super().__init__(*args, **kwargs)
+        self._torch_threads = threads
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        was_open = not self.is_closed
+        super().close(raise_if_closed=raise_if_closed)
+        if was_open and torch.get_num_threads() != self._torch_threads:
+            torch.set_num_threads(self._torch_threads)
+
+
+class _SerialEnv(_KeepsTorchThreads, SerialEnv):
+    """torchrl's ``SerialEnv``, leaving torch's thread count as it found it."""
+
+
+class _ParallelEnv(_KeepsTorchThreads, ParallelEnv):
+    """torchrl's ``ParallelEnv``, leaving torch's thread count as it found it once closed."""
+
+
 def make_atari_env(
     game: str = "Pong",
     preset: Preset = "paac",
@@ -283,9 +314,9 @@ def make_atari_env(
             raise ValueError(f"backend=single runs one env, not {num_envs}")
         base: EnvBase = factory()
     elif backend == "serial":
-        base = SerialEnv(num_envs, factory)
+        base = _SerialEnv(num_envs, factory)
     elif backend == "parallel":
-        base = ParallelEnv(num_envs, factory, mp_start_method="spawn")
+        base = _ParallelEnv(num_envs, factory, mp_start_method="spawn")
     elif backend == "envpool":
         base = EnvPoolAtari(game, num_envs, preset, train, life_loss)
     else:
