@@ -13,9 +13,15 @@ TORCH   ?= torch==2.13.0
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
 
+# uv installs the same packages as pip in about 0.6 of the time on the CI VM (2026-12-04, empty
+# caches, both byte-compiled: 63 and 73 s against 100 and 135 s; docs/tests.md). uv reads no
+# pip.conf: behind a mirror of your own, set INSTALL="$(BIN)/pip install -q" (pip's way).
+INSTALL ?= $(BIN)/uv pip install -q --python $(BIN)/python --compile-bytecode
+
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(BIN)/pip install -q $(FIND) "$(TORCH)"
-	$(BIN)/pip install -q $(FIND) -e ".[dev,events]"
+	$(BIN)/pip install -q uv
+	$(INSTALL) $(FIND) "$(TORCH)"
+	$(INSTALL) $(FIND) -e ".[dev,events]"
 	touch $@
 
 setup: $(VENV)/.installed
