@@ -15,7 +15,7 @@ $(BIN)/python:
 
 # uv installs the same packages as pip in about 0.6 of the time on the CI VM (2026-12-04, empty
 # caches, both byte-compiled: 63 and 73 s against 100 and 135 s; docs/tests.md). uv reads no
-# pip.conf: behind a mirror of your own, set INSTALL="$(BIN)/pip install -q" (pip's way).
+# pip.conf: behind a mirror of your own, set INSTALL=".venv/bin/pip install -q" (pip's way).
 INSTALL ?= $(BIN)/uv pip install -q --python $(BIN)/python --compile-bytecode
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
