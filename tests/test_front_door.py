@@ -3,6 +3,7 @@ that compare like with like, figures a person can read, docs true to the tree.""
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import signal
@@ -302,7 +303,6 @@ def _floor(module: str) -> int | None:
 
 
 def test_no_import_runs_back_up_a_floor() -> None:
-    import ast
 
     package = Path(__file__).resolve().parents[1] / "src" / "edr"
     upward = []
@@ -318,6 +318,20 @@ def test_no_import_runs_back_up_a_floor() -> None:
                 if floor is not None and floor < mine and FLOORS[floor] != helper_of:
                     upward.append(f"{path.relative_to(package)} imports {node.module}")
     assert upward == []
+
+
+def test_no_task_function_runs_over_80_lines() -> None:
+    """A task reads top to bottom as a few named steps (issue "house"): its helpers, not one
+    long body, hold the work."""
+    tasks = Path(__file__).resolve().parents[1] / "src" / "edr" / "tasks"
+    long = [
+        f"{path.name}:{node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for path in sorted(tasks.glob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.end_lineno - node.lineno + 1 > 80
+    ]
+    assert long == []
 
 
 # What edr-tables, which only reads records, must not load: the training floors, the emulator and

@@ -163,10 +163,8 @@ def fit_recognition(
 
     # ---- model, optimizer --------------------------------------------------------------------
     in_channels = representation.out_channels(frame_source.channels)
-    backbone_args = {"in_channels": in_channels, "num_classes": len(data.classes),
-                     "frames": clip_frames, "height": crop, "width": crop}  # fmt: skip
-    norm = input_norm(in_channels) if normalize_input else None
-    model = RecognitionModel(online, backbone(**backbone_args), norm).to(dev)
+    model, rebuild = _model(backbone, online, in_channels, len(data.classes), clip_frames, crop,
+                            normalize_input, dev)  # fmt: skip
     opt = optimizer(model.parameters())
     scheduler = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(milestones), gamma=gamma)
     parts = {"model": model, "optimizer": opt, "scheduler": scheduler}
@@ -186,8 +184,6 @@ def fit_recognition(
     )
 
     # ---- final evaluation --------------------------------------------------------------------
-    rebuild = {"online": online is not None, "input_norm": normalize_input,
-               "backbone_args": backbone_args}  # fmt: skip
     metrics = _finish(
         out_dir, model, train_set, test_set, dev, history, data.classes, rebuild, tested
     )
@@ -195,6 +191,27 @@ def fit_recognition(
         metrics["eval/accuracy"] = float("nan")
     data_part = data.metrics(data_root, synthetic, test_set, shuffle_frames)
     return Fitted(model, {**data_part, **metrics, **diverged})
+
+
+def _model(
+    backbone: Callable[..., nn.Module],
+    online: Representation | None,
+    in_channels: int,
+    num_classes: int,
+    frames: int,
+    crop: int,
+    normalize_input: bool,
+    device: torch.device,
+) -> tuple[RecognitionModel, dict[str, Any]]:
+    """The backbone on ``in_channels`` x ``frames`` x ``crop`` x ``crop`` clips, behind the
+    on-the-fly representation if any, on ``device``; and what a record keeps to rebuild it."""
+    backbone_args = {"in_channels": in_channels, "num_classes": num_classes, "frames": frames,
+                     "height": crop, "width": crop}  # fmt: skip
+    norm = input_norm(in_channels) if normalize_input else None
+    model = RecognitionModel(online, backbone(**backbone_args), norm).to(device)
+    rebuild = {"online": online is not None, "input_norm": normalize_input,
+               "backbone_args": backbone_args}  # fmt: skip
+    return model, rebuild
 
 
 def _epoch_loader(
