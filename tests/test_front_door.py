@@ -303,7 +303,6 @@ def _floor(module: str) -> int | None:
 
 
 def test_no_import_runs_back_up_a_floor() -> None:
-
     package = Path(__file__).resolve().parents[1] / "src" / "edr"
     upward = []
     for path in package.rglob("*.py"):
