@@ -245,6 +245,48 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
     ]  # fmt: skip
 
 
+def _atari_record(folder: Path, inputs: str, seed: int, budget: int, reached: int) -> None:
+    """A finished full-scale Pong run of ``budget`` env steps whose training score climbs from -21
+    to 19 at ``reached`` env steps (its history beside the record)."""
+    folder.mkdir(parents=True)
+    history = [{"env_steps": s, "train/score": -21.0 if s < reached else 19.0}
+               for s in range(0, budget + 1, 100_000)]  # fmt: skip
+    (folder / "history.json").write_text(json.dumps(history))
+    record = {
+        "status": "finished", "task": "atari", "fingerprint": f"{inputs}-{seed}-{budget}",
+        "cell": f"{inputs}-{budget}", "seed": seed, "scale": "full", "git": "abc",
+        "ended_at": "2026-12-05T10:00:00+0000", "machine": {"cpu": "test CPU", "cpu_count": 2},
+        "data": {"source": "emulator", "fingerprint": "ale"},
+        "config": {"seed": seed, "task": {"env_steps": budget,
+                                          "env": {"game": "Pong", "inputs": inputs}}},
+        "metrics": {"eval/mean": 15.0 + seed, "eval/max": 21.0, "eval/min": 10.0,
+                    "eval/plays": 30, "train/fps": 900.0},
+    }  # fmt: skip
+    (folder / "run.json").write_text(json.dumps(record))
+
+
+def test_table1_keeps_runs_of_two_budgets_apart(tmp_path) -> None:
+    """3M and 5M runs shown together: every mean, count and sentence is per budget, none mixes
+    them (a 3M run that never reached 18 is no 5M run that did not)."""
+    m = 1_000_000
+    for inputs, reached in (("fdr", 4 * m), ("fdr_edr", 2 * m)):
+        for seed in (0, 1):
+            _atari_record(tmp_path / "runs" / f"{inputs}{seed}_3M", inputs, seed, 3 * m, reached)
+            _atari_record(tmp_path / "runs" / f"{inputs}{seed}_5M", inputs, seed, 5 * m, reached)
+    tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
+    text = (tmp_path / "paper" / "table1_atari.md").read_text()
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()
+            if line.startswith("| ")]  # fmt: skip  # every table's
+    steps = {(r[1], r[2]): r[-1] for r in rows if r[0] == "Pong" and r[2] in ("3M", "5M")}
+    assert steps["FDR", "3M"] == "0 of 2"  # 18 is at 4M: beyond a 3M budget
+    assert steps["FDR", "5M"].startswith("2 of 2: 4.00M")
+    assert steps["FDR+EDR", "3M"].startswith("2 of 2: 2.00M")
+    assert "At 3M env steps: Figure 5a's" in text and "At 5M env steps: Figure 5a's" in text
+    assert "with FDR): supported: FDR+EDR took 2.00 - 2.00M" in text  # 5M's; 3M's undecided
+    assert {"FDR at 3M", "FDR at 5M", "FDR+EDR at 3M", "FDR+EDR at 5M"} <= {r[0] for r in rows}
+    assert "| ours at 3M env steps (the games we ran with both inputs) | +0.0 |" in text
+
+
 def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
     from edr.report.atari import steps_to_score
 

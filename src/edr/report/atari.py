@@ -54,15 +54,15 @@ def _steps_to_targets_block(done: pd.DataFrame) -> str:
     """Markdown: per game with targets (Pong: -10, 0, 10, 18) and input, the env steps its runs
     took to reach each in training, then the sentence on Figure 5a's "1.7x faster"."""
     lines, steps = [], {}
-    for (game, inputs), group in done.groupby(["game", "input"], sort=True):
+    for (budget, game, inputs), group in done.groupby(["budget", "game", "input"], sort=True):
         targets = TARGET_SCORES.get(game)
         if not targets:
             continue
-        steps[game, inputs] = {t: [steps_to_score(r, t) for r in group["record"]] for t in targets}
-        budget = pd.to_numeric(group["config.task.env_steps"], errors="coerce").max()
-        within = f"{budget / 1e6:g}M" if pd.notna(budget) else "?"
-        cells_ = " | ".join(_reached(s) for s in steps[game, inputs].values())
-        lines.append(f"| {game} | {INPUT_NAMES.get(inputs, inputs)} | {within} | {cells_} |")
+        steps[budget, game, inputs] = {
+            t: [steps_to_score(r, t) for r in group["record"]] for t in targets
+        }
+        cells_ = " | ".join(_reached(s) for s in steps[budget, game, inputs].values())
+        lines.append(f"| {game} | {INPUT_NAMES.get(inputs, inputs)} | {budget} | {cells_} |")
     if not lines:
         return ""
     targets = " | ".join(f"{t:g}" for t in TARGET_SCORES["Pong"])
@@ -74,9 +74,16 @@ def _steps_to_targets_block(done: pd.DataFrame) -> str:
         "|---|---|---|" + "---|" * len(TARGET_SCORES["Pong"]),
         *lines,
     ]
-    if {("Pong", "fdr"), ("Pong", "fdr_edr")} <= steps.keys():
-        block += ["", faster_verdict(steps["Pong", "fdr"], steps["Pong", "fdr_edr"])]
+    for budget in sorted({b for b, _, _ in steps}, key=_millions):
+        if {(budget, "Pong", "fdr"), (budget, "Pong", "fdr_edr")} <= steps.keys():
+            said = faster_verdict(steps[budget, "Pong", "fdr"], steps[budget, "Pong", "fdr_edr"])
+            block += ["", f"At {budget} env steps: {said}"]
     return "\n".join(block)
+
+
+def _millions(budget: str) -> float:
+    """``"5M"`` -> 5.0, for ordering budgets; an unknown one (``"?"``) last."""
+    return float(budget.removesuffix("M")) if budget != "?" else float("inf")
 
 
 def faster_verdict(
@@ -111,17 +118,25 @@ def faster_verdict(
 
 
 def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """Finished Atari runs with ``game`` and ``input`` columns; a full-scale run trained on fewer
-    env steps than the paper's says so in its ``scale``."""
+    """Finished Atari runs with ``game``, ``input``, ``budget`` (``"5M"``) and ``label`` columns:
+    the label is the input's name, with its budget where runs of several budgets are shown
+    together (``"FDR at 5M"``), so that no mean, curve or profile mixes budgets. A full-scale run
+    trained on fewer env steps than the paper's says so in its ``scale``."""
     done = finished(runs, "atari").copy()
     if done.empty:
-        return done.assign(game=[], input=[])
+        return done.assign(game=[], input=[], budget=[], label=[])
     given = done.reindex(columns=["config.task.env.game", "config.task.env.inputs",
                                   "config.task.env_steps"])  # fmt: skip  # NaN where none says
     done["config.task.env_steps"] = given["config.task.env_steps"]
     done["game"] = given["config.task.env.game"]
     done["input"] = given["config.task.env.inputs"]
     budget = pd.to_numeric(given["config.task.env_steps"], errors="coerce")
+    done["budget"] = [f"{b / 1e6:g}M" if pd.notna(b) else "?" for b in budget]
+    several = done["budget"].nunique() > 1  # then every label names its budget
+    done["label"] = [
+        f"{INPUT_NAMES.get(i, i)} at {b}" if several else INPUT_NAMES.get(i, i)
+        for i, b in zip(done["input"], done["budget"], strict=True)
+    ]
     paper = done["game"].map(_paper_env_steps)
     cut = (done["scale"] == "full") & (budget < paper)
     done.loc[cut, "scale"] = [
@@ -150,7 +165,8 @@ def average_gains(games: dict[str, dict[str, dict[str, float]]]) -> dict[str, fl
 
 
 def _our_games(grouped: pd.DataFrame) -> dict[str, dict[str, dict[str, float]]]:
-    """game -> input -> column -> our seed-averaged score, for games with one cell per input."""
+    """game -> input -> column -> our seed-averaged score, for games with one cell per input (of
+    one budget: ``grouped``'s cells are of one)."""
     games: dict[str, dict[str, dict[str, float]]] = {}
     for game, rows in grouped.groupby("game"):
         if rows["input"].is_unique:
@@ -165,11 +181,16 @@ def _gain_block(grouped: pd.DataFrame, published: dict[str, Any]) -> str:
     paper = lookup(published, "table1_atari", "games") or {}
     paper_games = {g: {i: dict(cols) for i, cols in by.items()} for g, by in paper.items()}
     printed = lookup(published, "table1_atari", "avg_gain_percent") or {}
+    budgets = sorted(grouped["budget"].unique(), key=_millions)
     rows = [
         ("the paper, as printed", printed),
         ("the paper, recomputed from its rows", average_gains(paper_games)),
-        ("ours (the games we ran with both inputs)", average_gains(_our_games(grouped))),
-    ]
+        *(
+            (f"ours at {budget} env steps (the games we ran with both inputs)",
+             average_gains(_our_games(grouped[grouped["budget"] == budget])))
+            for budget in budgets
+        ),
+    ]  # fmt: skip
     lines = [
         "Avg. gain of FDR+EDR over FDR: per column, the mean over games of (EDR - FDR) / |FDR|, %.",
         "",
@@ -199,13 +220,14 @@ def _paper_env_steps(game: str) -> int:
 
 
 def normalised_scores(done: pd.DataFrame, published: dict[str, Any]) -> dict[str, np.ndarray]:
-    """Per input, (runs, games) human-normalised average scores — the games every input has,
-    the first n seeds where each game has at least n runs."""
+    """Per label (an input, and its budget where there are several: :func:`atari_runs`), (runs,
+    games) human-normalised average scores — the games every label has, the first n seeds where
+    each game has at least n runs."""
     reference = published.get("atari_reference_scores", {})
-    games = sorted(set.intersection(*(set(g["game"]) for _, g in done.groupby("input"))))
+    games = sorted(set.intersection(*(set(g["game"]) for _, g in done.groupby("label"))))
     games = [g for g in games if g in reference]
     out = {}
-    for name, runs in done.groupby("input"):
+    for name, runs in done.groupby("label"):
         per_game = [
             runs[runs["game"] == g].sort_values("seed")[SCORES["Avg"]].to_numpy() for g in games
         ]
@@ -215,7 +237,7 @@ def normalised_scores(done: pd.DataFrame, published: dict[str, Any]) -> dict[str
             scores = np.stack([s[:n] for s in per_game], axis=1)  # (runs, games)
             low = np.array([r["random"] for r in ref])
             high = np.array([r["human"] for r in ref])
-            out[INPUT_NAMES.get(name, name)] = (scores - low) / (high - low)
+            out[name] = (scores - low) / (high - low)
     return out
 
 
@@ -229,24 +251,25 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
     points, intervals = rly.get_interval_estimates(
         scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps
     )
-    games = next(iter(scores.values())).shape
+    games = next(iter(scores.values())).shape[1]
     lines = [
         f"Beyond the paper: interquartile mean of human-normalised average scores over "
-        f"{games[0]} run(s) x {games[1]} game(s), 95 % stratified-bootstrap interval "
-        f"(rliable, {reps} resamples):",
+        f"{games} game(s), 95 % stratified-bootstrap interval (rliable, {reps} resamples):",
         "",
-        "| Input | IQM | 95 % interval |",
-        "|---|---:|---|",
+        "| Input | Runs | IQM | 95 % interval |",
+        "|---|---:|---:|---|",
     ]
-    for name in scores:
+    for name, runs in scores.items():  # runs: (runs, games)
         low, high = intervals[name][:, 0]
-        lines.append(f"| {name} | {points[name][0]:.3f} | [{low:.3f}, {high:.3f}] |")
+        lines.append(
+            f"| {name} | {runs.shape[0]} | {points[name][0]:.3f} | [{low:.3f}, {high:.3f}] |"
+        )
     return "\n".join(lines)
 
 
 def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done, unplaced = placeable(atari_runs(runs), ["game", "input"])
-    grouped = cells(done, [*SCORES.values(), FPS], ["game", "input"])
+    grouped = cells(done, [*SCORES.values(), FPS], ["game", "input", "budget"])
     frame, extra = pd.DataFrame(), ""
     if not grouped.empty:
         frame = pd.DataFrame(

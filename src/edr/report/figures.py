@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from edr.report.atari import INPUT_NAMES, atari_runs, normalised_scores
+from edr.report.atari import atari_runs, normalised_scores
 from edr.report.recognition import labelled, learnable_runs, without_ablations
 from edr.report.render import provenance
 from edr.report.runs import (
@@ -136,8 +136,7 @@ def _curve_panels(
 def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
     """Per game: the training score (top) and the fraction of the first convolution's units
     that are dead (bottom), mean and min-max band over seeds, per input."""
-    done = atari_runs(runs)
-    done = done.assign(label=[INPUT_NAMES.get(i, i) for i in done["input"]])
+    done = atari_runs(runs)  # labelled by input, and by budget where there are several
 
     def draw() -> plt.Figure | None:
         games = sorted(done["game"].dropna().unique())
