@@ -35,12 +35,17 @@ def paper(tmp_path_factory) -> Path:
     return root / "paper"
 
 
+def _cells(line: str) -> list[str]:
+    """A Markdown table line's cells."""
+    return [c.strip() for c in line.strip("|").split("|")]
+
+
 def _first_table(markdown: str) -> list[list[str]]:
     """The first Markdown table's lines (header, rule, body), split into cells."""
     lines = markdown.splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("|"))
     end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
-    return [[c.strip() for c in line.strip("|").split("|")] for line in lines[start:end]]
+    return [_cells(line) for line in lines[start:end]]
 
 
 def _rows(markdown: str) -> list[list[str]]:
@@ -275,8 +280,7 @@ def test_table1_keeps_runs_of_two_budgets_apart(tmp_path) -> None:
             _atari_record(tmp_path / "runs" / f"{inputs}{seed}_5M", inputs, seed, 5 * m, reached)
     tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
     text = (tmp_path / "paper" / "table1_atari.md").read_text()
-    rows = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()
-            if line.startswith("| ")]  # fmt: skip  # every table's
+    rows = [_cells(line) for line in text.splitlines() if line.startswith("| ")]  # every table's
     steps = {(r[1], r[2]): r[-1] for r in rows if r[0] == "Pong" and r[2] in ("3M", "5M")}
     assert steps["FDR", "3M"] == "0 of 2"  # 18 is at 4M: beyond a 3M budget
     assert steps["FDR", "5M"].startswith("2 of 2: 4.00M")
