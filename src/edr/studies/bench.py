@@ -33,7 +33,6 @@ import numba
 import torch
 from tqdm import tqdm
 
-from edr.allocator import keep_freed_memory
 from edr.data import read_video, synthetic_scene
 from edr.models.paac import Core
 from edr.report.published import load_published
@@ -54,6 +53,7 @@ from edr.representations import (
 from edr.representations.mpeg_flow import encode_clip
 from edr.store.atomic import write_json_atomic
 from edr.store.records import BenchRow, bench_dir, git_revision, machine_info
+from edr.studies.allocator import keep_freed_memory
 
 K3 = (1.0, 3.8, 8.0)
 
@@ -335,7 +335,7 @@ def run_speed_bench(args: argparse.Namespace, repeats: int) -> None:
     atari = torch.randint(0, 256, (args.atari_batch, args.frames, 1, 84, 84), dtype=torch.uint8)
     todo = jobs(clip, min(args.flow_frames, clip.shape[1]), atari) + long_clip_jobs(long, "")
     # The process's allocator as users have it; the last rows again with glibc keeping freed
-    # memory (edr.allocator.keep_freed_memory, process-wide, so only after everything else).
+    # memory (allocator.keep_freed_memory, process-wide, so only after everything else).
     kept = long_clip_jobs(long, ", glibc keeping freed memory")[::2]
     rows = _time_rows(todo, kept, repeats, args.warmup)
     record = {
