@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import edr.tasks.scalars
+from edr import tables
 from edr.data.clips import VideoSource
 from edr.data.datasets import DataLayoutError, resolve_root
 from edr.data.synthetic import action_video, write_synthetic_kth
@@ -20,10 +21,19 @@ from edr.data.video import write_video
 from edr.run import run
 from edr.store.atomic import atomic_path, publish_dir
 from edr.store.folders import plan_attempt
-from edr.store.identity import job_dirname, run_identity, with_root_symbols
+from edr.store.identity import (
+    ADDED_DEFAULTS,
+    IDENTITY_KEYS,
+    flatten,
+    job_dirname,
+    run_identity,
+    with_root_symbols,
+    without_added_defaults,
+)
 from edr.validate import ConfigError
 
 TINY_KTH = ("task=kth", "debug=tiny")
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_fingerprint_ignores_where_and_how_and_the_cell_ignores_the_seed(compose_config) -> None:
@@ -116,6 +126,27 @@ def test_raw_input_runs_from_before_standardised_became_the_default_keep_their_i
               "metrics": {"eval/accuracy": 0.5}}  # fmt: skip
     (tmp_path / "run.json").write_text(json.dumps(record))
     assert plan_attempt(tmp_path, fingerprint, semantic, "auto").action == "skip"
+
+
+def test_every_key_added_since_the_committed_runs_is_registered(compose_config) -> None:
+    """One committed record per folder behind paper/, composed again from its own overrides with
+    today's config: a key it did not have must be in ADDED_DEFAULTS (with the value it ran
+    with), or adding it has silently given every old run another identity. Changed values are
+    changed settings, not this test's business."""
+    unregistered = set()
+    registered = {key for keys in ADDED_DEFAULTS.values() for key in keys}
+    for folder in (p for p in tables.COMMITTED_SCOPE if p.parts[1] == "learning"):
+        path = next((REPO / folder).glob("*/run.json"))
+        record = json.loads(path.read_text())
+        overrides = [o.removeprefix("+") for o in record["overrides"]]  # added keys exist now
+        semantic = run_identity(compose_config(*overrides))[0]
+        held = {k: v for k, v in record["semantic_config"].items() if k in IDENTITY_KEYS}
+        held = without_added_defaults(with_root_symbols(held, record["config"]["paths"]))
+        new = flatten(semantic).keys() - flatten(held).keys()
+        unregistered |= {
+            f"{key} ({folder.name})" for key in new if key.split(".")[-1] not in registered
+        }
+    assert unregistered == set()
 
 
 def test_job_folder_names_come_from_semantic_overrides() -> None:
