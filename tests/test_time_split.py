@@ -159,23 +159,28 @@ def test_table4_shows_real_clip_rows_beside_generated_ones_never_averaged() -> N
 
 def test_the_learnable_blocks_fdr_control_is_the_run_on_edrs_own_data() -> None:
     """A newer run of the same FDR config on other data (speed classes generated again by later
-    code) belongs to Table 2, not to the learnable-EDR block, whose control ran on EDR's data."""
+    code) belongs to Table 2, not to the learnable-EDR block, whose control ran on EDR's data;
+    so does FDR on that data with its input standardised, where EDR's was raw."""
     import pandas as pd
 
     from edr.report.recognition import learnable_runs
 
-    def run(ablation: str | None, representation: str, data: str, ended: str) -> dict:
-        fingerprint = f"{ablation}-{representation}"  # one config: one fingerprint
+    def run(ablation: str | None, representation: str, data: str, ended: str,
+            standardised: bool = False) -> dict:  # fmt: skip
+        fingerprint = f"{ablation}-{representation}-{standardised}"  # one config: one fingerprint
         return {"task": "ucf101", "status": "finished", "fingerprint": fingerprint, "seed": 0,
                 "choices.ablation": ablation, "choices.representation": representation,
                 "data.fingerprint": data, "scale": "demo", "choices.backbone": "lenet_ftrcn",
+                "config.task.normalize_input": standardised if standardised else None,
                 "ended_at": ended, "record": f"{fingerprint}-{ended}"}  # fmt: skip
 
     frame = pd.DataFrame([
         run("learnable_log", "edr", "old data", "2026-12-02"),
         run(None, "fdr", "old data", "2026-12-02"),
         run(None, "fdr", "new data", "2026-12-03"),  # the same config, later, on other data
+        run(None, "fdr", "old data", "2026-12-03", standardised=True),
     ])  # fmt: skip
     chosen = learnable_runs(frame)
     control = chosen[chosen["choices.ablation"] == "fdr"]
     assert list(control["data.fingerprint"]) == ["old data"]
+    assert list(control["record"]) == ["None-fdr-False-2026-12-02"]

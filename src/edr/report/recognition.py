@@ -40,6 +40,13 @@ def only_ablations(runs: pd.DataFrame) -> pd.DataFrame:
     return runs[runs["choices.ablation"].notna() & (runs["choices.ablation"] != "None")]
 
 
+def standardised(done: pd.DataFrame) -> pd.Series:
+    """Whether each run's input was standardised before the backbone; raw where the record
+    predates ``task.normalize_input`` (every record before 2026-12-03)."""
+    missing = pd.Series(None, index=done.index, dtype=object)
+    return done.get("config.task.normalize_input", missing).eq(True)
+
+
 def labelled(done: pd.DataFrame) -> pd.DataFrame:
     """``done`` with what a row of Table 2 or 4 is labelled by: ``data.label`` (the data's words,
     "real clips (8 videos), split in time"; older records: their source) and ``input`` (the
@@ -49,7 +56,7 @@ def labelled(done: pd.DataFrame) -> pd.DataFrame:
     if done.empty:
         return done.assign(**{"data.label": None, "input": None})
     missing = pd.Series(None, index=done.index, dtype=object)
-    raw = ~done.get("config.task.normalize_input", missing).eq(True)
+    raw = ~standardised(done)
     shuffled = done.get("data.frame_order", missing).eq("shuffled")
     qualifiers = pd.Series(
         [", ".join(q for q, on in (("raw input", r), ("frames shuffled", s)) if on)
@@ -361,14 +368,16 @@ def learnable_runs(runs: pd.DataFrame) -> pd.DataFrame:
             continue
 
         def control(plain: pd.DataFrame, edr: pd.DataFrame = edr) -> pd.DataFrame:
-            """FDR on the very data EDR had (selected before the newest of one fingerprint is
-            kept: a later run of the same config on other data is another table's)."""
+            """FDR on the very data EDR had, its input standardised or raw as EDR's was
+            (selected before the newest of one fingerprint is kept: a later run of the same
+            config on other data is another table's)."""
             plain = without_ablations(plain)
             return plain[
                 (plain["choices.representation"] == "fdr")
                 & plain["data.fingerprint"].isin(set(edr["data.fingerprint"]))
                 & plain["scale"].isin(set(edr["scale"]))
                 & plain["choices.backbone"].isin(set(edr["choices.backbone"]))
+                & standardised(plain).isin(set(standardised(edr)))
             ]
 
         fdr = finished(runs, task, control)
