@@ -19,8 +19,8 @@ import pytest
 import edr
 from edr import tables
 from edr.report.runs import load_runs
-from edr.store.rebuild import UntrustedRecord
 from edr.tasks.atari import evaluate_checkpoint
+from edr.tasks.rebuild import UntrustedRecord
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = str(Path(edr.__file__).resolve().parents[1])  # the edr these tests import, for subprocesses

@@ -294,7 +294,6 @@ def test_a_sweep_with_a_refused_cell_ends_with_its_summary_line(cli, tmp_path) -
 
 FLOORS = ("tasks", "rl", "models", "representations", "data")  # top down
 ENTRY_POINTS = {"run", "tables", "evaluate", "studies", "report", "__init__"}
-TASKS_HELPERS = {"store/rebuild.py": "representations"}  # the README names this one exception
 
 
 def _floor(module: str) -> int | None:
@@ -313,8 +312,7 @@ def test_no_import_runs_back_up_a_floor() -> None:
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("edr."):
                 floor = _floor(node.module)
-                helper_of = TASKS_HELPERS.get(path.relative_to(package).as_posix())
-                if floor is not None and floor < mine and FLOORS[floor] != helper_of:
+                if floor is not None and floor < mine:
                     upward.append(f"{path.relative_to(package)} imports {node.module}")
     assert upward == []
 

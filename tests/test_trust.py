@@ -9,8 +9,8 @@ import pickle
 import pytest
 
 from edr.run import run
-from edr.store.rebuild import UntrustedRecord, check_targets
 from edr.tasks.atari import evaluate_checkpoint
+from edr.tasks.rebuild import UntrustedRecord, check_targets
 from edr.tasks.recognition import load_model
 
 

@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 
 from edr.store.checkpoints import UnreadableCheckpoint
-from edr.store.rebuild import UntrustedRecord
 from edr.store.records import UnreadableRecord
+from edr.tasks.rebuild import UntrustedRecord
 
 
 def _parser() -> argparse.ArgumentParser:

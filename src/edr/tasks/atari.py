@@ -52,9 +52,9 @@ from edr.store.checkpoints import (
     save_atomic,
     save_checkpoint,
 )
-from edr.store.rebuild import UntrustedRecord, instantiate_from_record
 from edr.store.records import UnreadableRecord, read_record
 from edr.tasks.plots import save_score_curve
+from edr.tasks.rebuild import UntrustedRecord, instantiate_from_record
 from edr.tasks.scalars import LoggerName, open_logger
 from edr.validate import ConfigError, PositiveInt, check_memory
 
@@ -435,7 +435,7 @@ def evaluate_checkpoint(
     (the run's ``evaluation.plays`` by default) as the run would have, and writes
     ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
     (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
-    the metrics. The record builds only the suite's own parts (:mod:`edr.store.rebuild`), and a
+    the metrics. The record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and a
     module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is
     imported only with ``trust_env_module``.
     """

@@ -39,10 +39,10 @@ from edr.store.checkpoints import (
     save_atomic,
     save_checkpoint,
 )
-from edr.store.rebuild import instantiate_from_record
 from edr.store.records import RECORD_NAME, read_record
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
+from edr.tasks.rebuild import instantiate_from_record
 from edr.tasks.scalars import LoggerName, open_logger
 from edr.validate import (
     ConfigError,
@@ -96,7 +96,7 @@ def evaluate(
 
 def load_model(run_dir: str | Path) -> RecognitionModel:
     """The model a recognition run trained, rebuilt from its record's config and ``model.pt``;
-    the config builds only the suite's own parts (:mod:`edr.store.rebuild`)."""
+    the config builds only the suite's own parts (:mod:`edr.tasks.rebuild`)."""
     run_dir = Path(run_dir)
     config = read_record(run_dir / RECORD_NAME)["config"]
     saved = torch.load(run_dir / MODEL, weights_only=True)
