@@ -440,8 +440,8 @@ def test_the_last_record_is_written_on_a_disk_that_stays_full(tmp_path) -> None:
 @pytest.mark.parametrize("checkpoint", [False, True])
 @pytest.mark.parametrize("resume", ["auto", "false"])
 def test_a_folder_of_runs_is_refused_as_a_run_folder(checkpoint, resume, compose_config, tmp_path):
+    from edr.checks.config import ConfigError
     from edr.run import run
-    from edr.validate import ConfigError
 
     runs = tmp_path / "runs"
     nested = _write(runs / "kth" / "one", _record())
@@ -455,9 +455,9 @@ def test_a_folder_of_runs_is_refused_as_a_run_folder(checkpoint, resume, compose
 
 
 def test_a_finished_record_without_metrics_is_one_line(compose_config, tmp_path) -> None:
+    from edr.checks.config import ConfigError
     from edr.run import run
     from edr.store.identity import run_identity
-    from edr.validate import ConfigError
 
     cfg = compose_config("task=kth", "debug=tiny", f"out_dir={tmp_path / 'run'}",
                          f"task.cache_dir={tmp_path / 'cache'}")  # fmt: skip

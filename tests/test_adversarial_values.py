@@ -14,6 +14,7 @@ import pytest
 import torch
 
 import edr.tasks.recognition as recognition
+from edr.checks.config import ConfigError
 from edr.data.datasets import kth, ucf101
 from edr.data.synthetic import write_synthetic_kth
 from edr.data.video import read_video, write_video
@@ -21,7 +22,6 @@ from edr.representations import EDR
 from edr.representations.base import FULL_SCALE
 from edr.run import run
 from edr.store.checkpoints import ChangedData
-from edr.validate import ConfigError
 
 TINY_KTH = ("task=kth", "debug=tiny")
 LONG_NAME = "n" * 300  # past NAME_MAX (255) everywhere

@@ -12,11 +12,11 @@ import torch
 
 import edr.rl.learner as learner
 import edr.tasks.atari as atari
+from edr.checks.config import ConfigError
 from edr.models.paac import PAACNetwork
 from edr.rl.loss import n_step_returns
 from edr.run import run
 from edr.tasks.atari import evaluate_checkpoint, load_network
-from edr.validate import ConfigError
 
 
 @pytest.mark.parametrize("core", ["lstm", "ftlstm"])

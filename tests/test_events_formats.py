@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from edr.checks.config import ConfigError
 from edr.data.events import (
     detect_format,
     iter_recording,
@@ -21,7 +22,6 @@ from edr.data.events import (
     write_recording,
 )
 from edr.representations.dvs import EVENT_DTYPE
-from edr.validate import ConfigError
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "events"
 

@@ -18,12 +18,12 @@ import cv2
 import numpy as np
 import pytest
 
-from edr import interrupts
-from edr.overrides import check_command_line
+from edr.checks import interrupts
+from edr.checks.command_line import check_command_line
+from edr.checks.config import ConfigError, check_config
 from edr.representations.buffers import Recycler
 from edr.run import CONF_DIR, ENTRY_KEYS, headline, run
 from edr.tasks import recognition
-from edr.validate import ConfigError, check_config
 
 EDR_RUN = str(Path(sys.executable).parent / "edr-run")
 

@@ -8,13 +8,13 @@ import pytest
 import torch
 from torchrl.envs import TransformedEnv
 
+from edr.checks.config import ConfigError
 from edr.models.paac import PAACNetwork
 from edr.representations import EDR
 from edr.rl.optim import TFRMSprop, make_optimizer
 from edr.rl.rollout import Actor
 from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings, OptimSettings
 from edr.tasks.atari import _env, train_paac
-from edr.validate import ConfigError
 
 
 def test_tf_rmsprop_step_equals_a_hand_computed_one() -> None:

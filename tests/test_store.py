@@ -14,6 +14,7 @@ import pytest
 
 import edr.tasks.scalars
 from edr import tables
+from edr.checks.config import ConfigError
 from edr.data.clips import VideoSource
 from edr.data.datasets import DataLayoutError, resolve_root
 from edr.data.synthetic import action_video, write_synthetic_kth
@@ -30,7 +31,6 @@ from edr.store.identity import (
     with_root_symbols,
     without_added_defaults,
 )
-from edr.validate import ConfigError
 
 TINY_KTH = ("task=kth", "debug=tiny")
 REPO = Path(__file__).resolve().parents[1]

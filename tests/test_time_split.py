@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import torch
 
+from edr.checks.config import ConfigError
 from edr.data.clips import ClipDataset, VideoSource
 from edr.data.datasets import TimeSplit, VideoSet, kth, ucf101
 from edr.data.synthetic import KTH_ACTIONS, write_synthetic_kth, write_synthetic_ucf101
 from edr.run import run
 from edr.store.records import read_record
 from edr.tasks.recognition import load_model
-from edr.validate import ConfigError
 
 REAL_VIDEO = Path(
     os.environ.get("EDR_REAL_VIDEO", Path(__file__).resolve().parents[2] / "shared" / "real-video")

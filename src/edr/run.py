@@ -30,8 +30,10 @@ from hydra.types import RunMode
 from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from edr import CONF_DIR, interrupts
-from edr.overrides import check_command_line
+from edr import CONF_DIR
+from edr.checks import interrupts
+from edr.checks.command_line import check_command_line
+from edr.checks.config import ConfigError, Seed, Threads, check_config, path_problem
 from edr.report.published import load_published, lookup
 from edr.store.atomic import remove_partial_files
 from edr.store.checkpoints import UnreadableCheckpoint, WriteStopped, progress
@@ -54,7 +56,6 @@ from edr.store.records import (
     write_last_record,
     write_record,
 )
-from edr.validate import ConfigError, Seed, Threads, check_config, path_problem
 
 # The entry point's own keys, checked like a task's arguments.
 INTERNAL_GROUPS = {"hydra", "recognition", "paths"}  # composed by the configs, not picked by users
@@ -301,7 +302,7 @@ def hydra_app(cfg: DictConfig) -> None:
 def cli() -> None:
     """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
     of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
-    (:mod:`edr.interrupts`); a sweep says its summary line before it."""
+    (:mod:`edr.checks.interrupts`); a sweep says its summary line before it."""
     interrupts.install()
     try:
         main()

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from edr import interrupts
+from edr.checks import interrupts
 from edr.data.datasets import Video, VideoSet
 from edr.data.video import read_video
 from edr.store.atomic import atomic_path

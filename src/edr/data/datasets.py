@@ -31,11 +31,11 @@ from typing import Literal
 
 import numpy as np
 
+from edr.checks.config import ConfigError, Fraction, OpenFraction, check_memory
 from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
 from edr.data.video import UnreadableVideo, check_video_file
 from edr.store.identity import digest
-from edr.validate import ConfigError, Fraction, OpenFraction, check_memory
 
 UCF_LAYOUT = (
     "<root>/<ClassName>/v_<ClassName>_gXX_cYY.avi plus <root>/ucfTrainTestlist/ with "

@@ -17,10 +17,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from edr.checks.config import PositiveInt
 from edr.data.synthetic import ucf101_name, write_ucf101_lists
 from edr.data.video import read_video, write_video
 from edr.store.atomic import publish_dir
-from edr.validate import PositiveInt
 
 SPEEDS = {"RealSpeed1x": 1, "RealSpeed2x": 2, "RealSpeed4x": 4}  # class -> frame step
 DATA_SOURCE = "real videos, speed classes"  # the runs' data/source: not UCF-101, not generated

@@ -10,10 +10,10 @@ import cv2
 import numpy as np
 import torch
 
+from edr.checks.config import PositiveInt, Range, check_memory
 from edr.data.fingerprint import files_fingerprint
 from edr.data.video import read_video, write_video
 from edr.store.atomic import publish_dir
-from edr.validate import PositiveInt, Range, check_memory
 
 FrameSide = Annotated[int, Range(16)]  # a frame's side: the generated scene draws at least 16
 

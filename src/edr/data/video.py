@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import torch
 
-from edr.validate import ConfigError
+from edr.checks.config import ConfigError
 
 
 class UnreadableVideo(ConfigError):

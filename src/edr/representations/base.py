@@ -134,7 +134,7 @@ def check_enough_frames(
 ) -> None:
     """``ConfigError`` naming ``key`` unless a clip of ``frames`` frames gives every one of
     ``representations`` an output frame (a difference needs two)."""
-    from edr.validate import ConfigError
+    from edr.checks.config import ConfigError
 
     for name, representation in representations.items():
         if representation.out_frames(frames) < 1:

@@ -20,8 +20,8 @@ import math
 import torch
 import torch.nn.functional as F
 
+from edr.checks.config import OpenFraction, PositiveFloat, PositiveInt, check_arguments
 from edr.representations.base import FlowRepresentation, check_clip, to_gray
-from edr.validate import OpenFraction, PositiveFloat, PositiveInt, check_arguments
 
 EPS2 = 1e-6  # Charbonnier's epsilon squared (eps = 0.001)
 SOR_OMEGA = 1.99  # over-relaxation of the red-black sweeps (OpenCV's CUDA class uses 1.99)

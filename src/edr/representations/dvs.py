@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from numba import njit
 
+from edr.checks.config import NonNegativeFloat, PositiveFloat, check_arguments
 from edr.data.events.checks import EVENT_DTYPE
 from edr.representations.base import (
     FULL_SCALE,
@@ -30,7 +31,6 @@ from edr.representations.base import (
     on_off_picture,
     to_gray,
 )
-from edr.validate import NonNegativeFloat, PositiveFloat, check_arguments
 
 TILE_PIXELS = 1 << 18  # DVSCamera simulates this many pixels at a time (bounded memory)
 

@@ -24,6 +24,13 @@ import numpy as np
 import torch
 from torch import nn
 
+from edr.checks.config import (
+    BelowOne,
+    NonNegativeFloat,
+    PositiveFloat,
+    PositiveInt,
+    check_arguments,
+)
 from edr.representations import buffers, kernels
 from edr.representations.base import (
     FULL_SCALE,
@@ -35,7 +42,6 @@ from edr.representations.base import (
     to_gray,
 )
 from edr.representations.edr_grad import fused_events
-from edr.validate import BelowOne, NonNegativeFloat, PositiveFloat, PositiveInt, check_arguments
 
 OUT_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16,
               "float64": torch.float64}  # fmt: skip

@@ -7,9 +7,9 @@ from typing import Literal
 import numpy as np
 import torch
 
+from edr.checks.config import PositiveFloat, check_arguments
 from edr.representations import buffers, kernels
 from edr.representations.base import Features, Representation, check_clip, to_float, to_gray
-from edr.validate import PositiveFloat, check_arguments
 
 
 class FDR(Representation):

@@ -14,8 +14,8 @@ import av
 import numpy as np
 import torch
 
+from edr.checks.config import check_arguments
 from edr.representations.base import Features, FlowRepresentation, check_clip, to_float
-from edr.validate import check_arguments
 
 
 def rasterize_motion_vectors(mvs: np.ndarray, height: int, width: int) -> np.ndarray:

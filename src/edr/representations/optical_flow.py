@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import torch
 
+from edr.checks.config import Fraction, PositiveFloat, PositiveInt, check_arguments
 from edr.representations.base import FlowRepresentation, check_clip, to_gray
-from edr.validate import Fraction, PositiveFloat, PositiveInt, check_arguments
 
 
 def gray_uint8(frames: torch.Tensor) -> np.ndarray:

@@ -49,9 +49,9 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
+from edr.checks.config import Check
 from edr.representations import EDR
 from edr.rl.transform import ObservationFrame
-from edr.validate import Check
 
 gym.register_envs(ale_py)
 

@@ -9,17 +9,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from edr.models.paac import Core, Init, InputNorm
-from edr.representations import EDR
-from edr.rl.envs import AtariGame, Backend, Preset
-from edr.rl.optim import OptimizerName
-from edr.validate import (
+from edr.checks.config import (
     Fraction,
     ModuleName,
     NonNegativeFloat,
     PositiveFloat,
     PositiveInt,
 )
+from edr.models.paac import Core, Init, InputNorm
+from edr.representations import EDR
+from edr.rl.envs import AtariGame, Backend, Preset
+from edr.rl.optim import OptimizerName
 
 Inputs = Literal["fdr", "fdr_edr", "edr"]
 BackendChoice = Backend | Literal["auto"]

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from edr.checks.config import ConfigError
 from edr.store.atomic import atomic_path
-from edr.validate import ConfigError
 
 CHECKPOINT = "checkpoint.pt"
 DATA_FINGERPRINT = "data_fingerprint"  # the content fingerprint of the data it trained on

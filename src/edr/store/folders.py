@@ -32,6 +32,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, read_write
 
+from edr.checks.config import ConfigError, path_problem
 from edr.store.checkpoints import CHECKPOINT
 from edr.store.identity import (
     IDENTITY_KEYS,
@@ -44,7 +45,6 @@ from edr.store.identity import (
     without_added_defaults,
 )
 from edr.store.records import RECORD_NAME, now, read_record
-from edr.validate import ConfigError, path_problem
 
 ATTEMPTS = "attempts.jsonl"
 LOCK = "run.lock"  # held while a process writes the folder: {"host", "pid", "since"}

@@ -26,7 +26,8 @@ import torch
 from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
-from edr import interrupts
+from edr.checks import interrupts
+from edr.checks.config import ConfigError, PositiveInt, check_memory
 from edr.models.dead_units import DeadUnits
 from edr.models.paac import PAACNetwork
 from edr.representations import EDR
@@ -56,7 +57,6 @@ from edr.store.records import UnreadableRecord, read_record
 from edr.tasks.plots import save_score_curve
 from edr.tasks.rebuild import UntrustedRecord, instantiate_from_record
 from edr.tasks.scalars import LoggerName, open_logger
-from edr.validate import ConfigError, PositiveInt, check_memory
 
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
 HISTORY = "history.json"  # a row per log_every updates: env steps, losses, fps, training score

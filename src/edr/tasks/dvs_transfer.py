@@ -20,7 +20,15 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from edr import interrupts
+from edr.checks import interrupts
+from edr.checks.config import (
+    ConfigError,
+    ExistingDir,
+    NonNegativeInt,
+    OpenFraction,
+    PositiveFloat,
+    PositiveInt,
+)
 from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
 from edr.data.events import list_recordings, read_recording, sensor_of
@@ -31,14 +39,6 @@ from edr.store.atomic import write_json_atomic
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
 from edr.tasks.recognition import CONFUSION, Fitted, check_decoded_memory
-from edr.validate import (
-    ConfigError,
-    ExistingDir,
-    NonNegativeInt,
-    OpenFraction,
-    PositiveFloat,
-    PositiveInt,
-)
 
 log = logging.getLogger(__name__)
 BIN_FRAMES = 16  # frame intervals binned at the sensor's resolution at a time

@@ -25,6 +25,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
+from edr.checks.config import ExistingFile, PositiveFloat, PositiveInt
 from edr.data.events import (
     detect_format,
     iter_recording,
@@ -36,7 +37,6 @@ from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import FDR, DVSCamera, Representation
 from edr.representations.base import check_enough_frames, to_gray
 from edr.representations.dvs import EVENT_DTYPE
-from edr.validate import ExistingFile, PositiveFloat, PositiveInt
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,20 @@ from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
 
-from edr import interrupts
+from edr.checks import interrupts
+from edr.checks.config import (
+    ConfigError,
+    DataRoot,
+    Device,
+    Fraction,
+    NonEmpty,
+    NonNegativeInt,
+    OutputDir,
+    PositiveFloat,
+    PositiveInt,
+    check_memory,
+    torch_device,
+)
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
 from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
@@ -44,19 +57,6 @@ from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.rebuild import instantiate_from_record
 from edr.tasks.scalars import LoggerName, open_logger
-from edr.validate import (
-    ConfigError,
-    DataRoot,
-    Device,
-    Fraction,
-    NonEmpty,
-    NonNegativeInt,
-    OutputDir,
-    PositiveFloat,
-    PositiveInt,
-    check_memory,
-    torch_device,
-)
 
 log = logging.getLogger(__name__)
 

@@ -19,11 +19,11 @@ import matplotlib.pyplot as plt
 import torch
 from tqdm import tqdm
 
+from edr.checks.config import ConfigError, ExistingFile, Range
 from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import Representation
 from edr.representations.base import check_enough_frames
 from edr.store.atomic import save_figure
-from edr.validate import ConfigError, ExistingFile, Range
 
 log = logging.getLogger(__name__)
 

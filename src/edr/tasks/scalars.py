@@ -7,8 +7,8 @@ import importlib.util
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
+from edr.checks.config import Check
 from edr.store.atomic import write_text_atomic
-from edr.validate import Check
 
 if TYPE_CHECKING:
     from torchrl.record.loggers import Logger

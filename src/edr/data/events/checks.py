@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from edr.validate import ConfigError
+from edr.checks.config import ConfigError
 
 # One event: time (µs), position, polarity (1 ON, 0 OFF), as every reader returns it and as the
 # simulated camera (representations/dvs.py) writes it.

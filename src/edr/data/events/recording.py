@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from edr.checks.config import ConfigError
 from edr.data.events import aedat4, datasets, jaer, prophesee
 from edr.data.events.checks import EVENT_DTYPE, MAX_SIDE, Checked, RecordingError, joined
-from edr.validate import ConfigError
 
 
 @dataclass(frozen=True)

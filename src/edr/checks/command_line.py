@@ -23,7 +23,7 @@ from hydra.errors import HydraException
 from hydra.utils import get_object
 from omegaconf import DictConfig
 
-from edr.validate import ConfigError
+from edr.checks.config import ConfigError
 
 
 def _first_values(overrides: Sequence[Override]) -> list[str]:
