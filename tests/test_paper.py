@@ -291,6 +291,17 @@ def test_table1_keeps_runs_of_two_budgets_apart(tmp_path) -> None:
     assert "| ours at 3M env steps (the games we ran with both inputs) | +0.0 |" in text
 
 
+def test_the_steps_to_a_score_rows_run_from_the_smallest_budget_up(tmp_path) -> None:
+    """10M after 3M, though "10M" sorts before "3M" as text."""
+    m = 1_000_000
+    for budget in (3, 10):
+        _atari_record(tmp_path / "runs" / f"fdr_{budget}M", "fdr", 0, budget * m, 2 * m)
+    tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
+    text = (tmp_path / "paper" / "table1_atari.md").read_text()
+    rows = [_cells(line) for line in text.splitlines() if line.startswith("| Pong | FDR |")]
+    assert [r[2] for r in rows] == ["3M", "10M"]
+
+
 def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
     from edr.report.atari import steps_to_score
 

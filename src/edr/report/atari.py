@@ -54,7 +54,10 @@ def _steps_to_targets_block(done: pd.DataFrame) -> str:
     """Markdown: per game with targets (Pong: -10, 0, 10, 18) and input, the env steps its runs
     took to reach each in training, then the sentence on Figure 5a's "1.7x faster"."""
     lines, steps = [], {}
-    for (budget, game, inputs), group in done.groupby(["budget", "game", "input"], sort=True):
+    groups = done.groupby(["budget", "game", "input"])
+    for (budget, game, inputs), group in sorted(
+        groups, key=lambda g: (_millions(g[0][0]), *g[0][1:])
+    ):
         targets = TARGET_SCORES.get(game)
         if not targets:
             continue
