@@ -58,3 +58,15 @@ class Catch(gym.Env):
 
 
 gym.register("EdrCatch-v0", entry_point=Catch)
+
+
+def catch_envs(num_envs: int, **kwargs):
+    """``num_envs`` catching games as ``task=atari`` builds its envs (a torchrl env with EDR on
+    gray and ``is_init``), stepped in this process."""
+    from edr.representations import EDR
+    from edr.tasks.atari import _env
+
+    return _env(
+        game="EdrCatch-v0", preset="none", module="catch_game", num_envs=num_envs,
+        backend="serial", edr=EDR(color="gray"), keep_inputs=False, **kwargs,
+    )  # fmt: skip

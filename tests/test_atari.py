@@ -219,6 +219,18 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert (tmp_path / "training_curve.png").is_file()
     network = load_network(tmp_path)
     assert sum(p.numel() for p in network.parameters()) > 0
+    assert metrics["eval/network_mode"] == "eval" and metrics["eval/policy"] == "sample"
+
+    # a finished run kept as Table 1 keeps it (run.json and network.pt) is scored again
+    kept = tmp_path.with_name(f"{tmp_path.name}_kept")
+    kept.mkdir()
+    for name in ("run.json", "network.pt"):
+        (kept / name).write_bytes((tmp_path / name).read_bytes())
+    rescored = evaluate_checkpoint(kept, plays=2)
+    assert rescored["train/env_steps"] == 2000 and rescored["eval/plays"] == 2
+    saved = json.loads((kept / "network_eval.json").read_text())
+    assert len(saved.pop("scores")) == 2 and saved == rescored
+    assert sorted(p.name for p in kept.iterdir()) == ["network.pt", "network_eval.json", "run.json"]
 
     # a finished run trains on from its last checkpoint to a raised budget, and not to a lower one
     extended = run(compose_config(*overrides, f"out_dir={tmp_path}", "task.env_steps=2400"))

@@ -6,15 +6,15 @@ from __future__ import annotations
 
 import pytest
 import torch
-from torchrl.envs import TransformedEnv
 
+from catch_game import catch_envs
 from edr.checks.config import ConfigError
 from edr.models.paac import PAACNetwork
 from edr.representations import EDR
 from edr.rl.optim import TFRMSprop, make_optimizer
 from edr.rl.rollout import Actor
 from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings, OptimSettings
-from edr.tasks.atari import _env, train_paac
+from edr.tasks.atari import train_paac
 
 
 def test_tf_rmsprop_step_equals_a_hand_computed_one() -> None:
@@ -52,17 +52,8 @@ def test_torch_rmsprop_is_not_tf_rmsprop_at_paac_settings() -> None:
         make_optimizer("sgd", [p], lr=0.1)
 
 
-def _catch_envs(num_envs: int, **kwargs) -> TransformedEnv:
-    """``num_envs`` catching games (tests/catch_game.py, on this folder's path) as the task
-    builds its envs, with EDR on gray, stepped in this process."""
-    return _env(
-        game="EdrCatch-v0", preset="none", module="catch_game", num_envs=num_envs,
-        backend="serial", edr=EDR(color="gray"), keep_inputs=False, **kwargs,
-    )  # fmt: skip
-
-
 def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes() -> None:
-    env = _catch_envs(2)
+    env = catch_envs(2)
     env.set_seed(0)
     torch.manual_seed(0)
     network = PAACNetwork(2 * env.observation_spec["observation"].shape[-3], 3, "ftlstm")
@@ -85,7 +76,7 @@ def test_rollouts_keep_the_graph_cut_at_their_start_and_score_whole_episodes() -
 
 
 def test_play_scores_one_whole_game_per_env_at_once() -> None:
-    env = _catch_envs(3)
+    env = catch_envs(3)
     env.set_seed(0)
     torch.manual_seed(0)
     actor, ended = Actor(env, PAACNetwork(5, 3, "lstm")), []
@@ -182,7 +173,7 @@ def test_actor_stacks_the_last_frames_oldest_first_and_restarts_per_env() -> Non
     """The network's input at every step is the env's last 3 frames, oldest first, where an
     env that (re)starts repeats its first frame (games end every 16 steps): checked against
     the frames the env gave, stacked here one env at a time."""
-    env = _catch_envs(2, frame_ring=44)
+    env = catch_envs(2, frame_ring=44)
     env.set_seed(0)
     seen: list[torch.Tensor] = []  # (2, 3 * 5, 84, 84) each step: what the network got
     newest: list[tuple[torch.Tensor, torch.Tensor]] = []  # each step: (frame, is_init) per env

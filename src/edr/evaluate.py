@@ -1,5 +1,6 @@
 """edr-eval: score an Atari run's latest checkpoint, for a run stopped before its end (or
-scored again with more games). ``python -m edr.evaluate`` is the same command."""
+scored again with more games), or a finished run's ``network.pt`` (Table 1's kept networks).
+``python -m edr.evaluate`` is the same command."""
 
 from __future__ import annotations
 
@@ -15,12 +16,15 @@ from edr.tasks.rebuild import UntrustedRecord
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="edr-eval",
-        description="Score the network of an Atari run's latest checkpoint: play its games "
-        "(task.evaluation.plays, or --plays) and write eval_scores.json, history.json, the "
-        "training curve and checkpoint_eval.json beside its run.json.",
+        description="Score an Atari run's network again, in eval mode: its latest checkpoint "
+        "(writes eval_scores.json, history.json, the training curve and checkpoint_eval.json "
+        "beside its run.json) or, in a folder without one, its network.pt (writes "
+        "network_eval.json only). Plays task.evaluation.plays games, or --plays.",
         epilog="example: edr-eval results/runs/atari/<run> --plays 30",
     )
-    parser.add_argument("run_dir", type=Path, help="the run's folder (run.json, checkpoint.pt)")
+    parser.add_argument(
+        "run_dir", type=Path, help="the run's folder (run.json, checkpoint.pt or network.pt)"
+    )
     parser.add_argument("--plays", type=int, default=None, help="games (default: the run's)")
     parser.add_argument(
         "--trust-env-module",

@@ -29,6 +29,7 @@ from torch import nn
 from torch.nn import functional
 
 from edr.models.convnets import LeNet
+from edr.models.precision import Precision, autocast
 from edr.models.recurrent import feature_tracking_weights, track_features
 
 Core = Literal["lstm", "ftlstm", "none", "lenet_ftlstm"]
@@ -100,12 +101,19 @@ def fold_affine(
 
 
 def batch_statistics(frame: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """frame (B, C, H, W) -> each channel's mean and biased variance (C,), in one pass over
-    the frame (sums of x and x^2; the frames are bounded, so no cancellation to fear)."""
-    x = frame.to(torch.float32).flatten(2)  # (B, C, H*W)
-    n = x.shape[0] * x.shape[2]
-    mean = x.sum((0, 2)) / n
-    return mean, ((x * x).sum((0, 2)) / n - mean * mean).clamp_min(0.0)
+    """frame (B, C, H, W) -> each channel's mean and biased variance (C,), from the sums of x
+    and x^2 in float32 (the frames are bounded, so no cancellation to fear), read where a
+    channels-last frame lies: (B*H*W, C), a view. A float16 or bfloat16 frame is summed as it
+    is, in float32, without a float32 copy of it (its sum of squares through the norm, to
+    ~1e-5 of the variance: the frame itself holds ~3 digits)."""
+    x = frame.permute(0, 2, 3, 1).reshape(-1, frame.shape[1])  # (B*H*W, C)
+    n = x.shape[0]
+    mean = x.sum(0, dtype=torch.float32) / n
+    if x.dtype == torch.float32:
+        square = (x * x).sum(0) / n
+    else:
+        square = torch.linalg.vector_norm(x, dim=0, dtype=torch.float32).square() / n
+    return mean, (square - mean * mean).clamp_min(0.0)
 
 
 def _frame_key(frame: torch.Tensor) -> tuple:
@@ -118,9 +126,12 @@ class PAACNetwork(nn.Module):
     or ``frames`` frames (..., C / frames, 84, 84), oldest first.
 
     ``input_norm``: ``raw`` frames as the env gives them, ``centred`` (minus 0.5), or
-    ``batchnorm`` (each frame channel normalised by the batch's statistics, as the authors' code
-    did with TensorFlow's ``batch_norm`` in training mode: the network is never put in eval mode,
-    so acting and evaluation normalise by their batch of envs too).
+    ``batchnorm`` (each frame channel normalised by the batch's statistics in training mode,
+    as the authors' code did with TensorFlow's ``batch_norm``, so acting normalises by its batch
+    of envs; in eval mode, as evaluation plays, by the running statistics training kept).
+
+    ``precision``: ``bfloat16`` runs the convolutions and matrix products under bfloat16
+    autocast (:mod:`edr.models.precision`); the outputs, parameters and gradients stay float32.
     """
 
     def __init__(
@@ -132,8 +143,10 @@ class PAACNetwork(nn.Module):
         init: Init = "orthogonal",
         input_norm: InputNorm = "raw",
         frames: int = 1,
+        precision: Precision = "float32",
     ) -> None:
         super().__init__()
+        self.precision = precision
         if in_channels % frames:
             raise ValueError(f"{in_channels} input channels do not split into {frames} frames")
         if core == "lenet_ftlstm" and frames != 1:
@@ -200,10 +213,10 @@ class PAACNetwork(nn.Module):
 
     def _maps(self, frames: list[torch.Tensor]) -> torch.Tensor:
         """The trunk's feature maps (B, F, h, w) of the frames [(B, C, 84, 84)] * n; observations
-        may come as float16, and go channels-last as the trunk."""
+        may come as float16 or bfloat16, and go channels-last as the trunk."""
         if self.input_norm == "batchnorm":
             return self._normalised_maps(frames)
-        frames = [f.to(torch.float32, memory_format=torch.channels_last) for f in frames]
+        frames = [self._as_input(f) for f in frames]
         if self.input_norm == "centred":
             frames = [f - 0.5 for f in frames]
         if self.core_type == "lenet_ftlstm":
@@ -229,7 +242,7 @@ class PAACNetwork(nn.Module):
             scales.append(scale)
             shifts.append(bn.bias - mean * scale)
         first, *rest = self.trunk
-        frames = [f.to(torch.float32, memory_format=torch.channels_last) for f in frames]
+        frames = [self._as_input(f) for f in frames]
         if self.core_type == "lenet_ftlstm":
             weight, bias = fold_affine(first, scales[-1], shifts[-1])
             maps = functional.conv2d(frames[-1], weight, bias, first.stride)
@@ -238,6 +251,12 @@ class PAACNetwork(nn.Module):
         for layer in rest:
             maps = layer(maps)
         return maps  # (B, 32, 9, 9); lenet_ftlstm (B, 16, 18, 18)
+
+    def _as_input(self, frame: torch.Tensor) -> torch.Tensor:
+        """A frame as the trunk convolves it: channels-last, in the dtype it computes in (float32,
+        or bfloat16 under bfloat16 autocast, where a bfloat16 frame goes in as it is)."""
+        dtype = torch.bfloat16 if self.precision == "bfloat16" else torch.float32
+        return frame.to(dtype, memory_format=torch.channels_last)
 
     def _frame_statistics(self, frames: list[torch.Tensor]) -> list[tuple[torch.Tensor, ...]]:
         """Each frame's :func:`batch_statistics`. A frame the last call also saw takes the
@@ -293,5 +312,6 @@ class PAACNetwork(nn.Module):
         batch = frames[0].shape[:-3]
         keep = (~is_init.reshape(-1, 1)).to(h.dtype)  # a new episode starts from zeros
         flat_h, flat_c = h.reshape(-1, h.shape[-1]) * keep, c.reshape(-1, c.shape[-1]) * keep
-        out = self._step([f.reshape(-1, *f.shape[-3:]) for f in frames], flat_h, flat_c)
-        return tuple(o.reshape(*batch, o.shape[-1]) for o in out)
+        with autocast(self.precision):
+            out = self._step([f.reshape(-1, *f.shape[-3:]) for f in frames], flat_h, flat_c)
+        return tuple(o.float().reshape(*batch, o.shape[-1]) for o in out)

@@ -270,6 +270,27 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
     return "\n".join(lines)
 
 
+def _evaluation_note(done: pd.DataFrame) -> str:
+    """How the rows' games were played: in eval mode (running statistics), or, for records from
+    before that fix (no ``eval/network_mode``), in training mode; and the policy."""
+    mode = done.reindex(columns=["metrics.eval/network_mode"]).iloc[:, 0]
+    old = done[mode.isna()]
+    said = (
+        "Evaluation: the network in eval mode (batch-normed frames by training's running "
+        "statistics), each action sampled from the policy (greedy where a record's "
+        "`eval/policy` says so)."
+    )
+    if old.empty:
+        return said
+    rows = sorted({f"{g} {INPUT_NAMES.get(i, i)} at {b}"
+                   for g, i, b in zip(old["game"], old["input"], old["budget"], strict=True)})  # fmt: skip
+    return (
+        f"{said} Rows scored before that fix (2026-12-06), in training mode (each batch of games "
+        "normalised by its own frames, the running statistics updated as they played), whose "
+        f"networks were not kept and cannot be scored again: {', '.join(rows)}."
+    )
+
+
 def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done, unplaced = placeable(atari_runs(runs), ["game", "input"])
     grouped = cells(done, [*SCORES.values(), FPS], ["game", "input", "budget"])
@@ -314,6 +335,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         notes=[
             "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a run "
             "(30 full games at full scale), each then averaged over seeds (± std).",
+            _evaluation_note(done),
             "Env steps/s: the training loop's throughput (`train/fps`, from the start of a "
             "run's last attempt), on the machine named, with whatever else ran beside it.",
         ],

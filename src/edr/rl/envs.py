@@ -13,7 +13,7 @@ Presets (the same on every backend):
   id in place of the game, ``module`` the module that registers it): no ALE wrappers, frames
   resized to 84x84 if they are not.
 
-Observation ``observation`` (..., C, 84, 84) float32 (or float16, ``obs_dtype``): FDR (RGB 3
+Observation ``observation`` (..., C, 84, 84) float32 (or float16, bfloat16: ``obs_dtype``): FDR (RGB 3
 or gray 1 channel, /255) and/or EDR events computed on the fly, written in one pass
 (``ObservationFrame``), one agent step's frame: the network's window of the last frames is
 its actor's (``edr.rl.rollout.Actor``).
@@ -28,7 +28,7 @@ import hashlib
 import importlib
 import os
 import re
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import ale_py
 import ale_py.roms
@@ -57,6 +57,7 @@ gym.register_envs(ale_py)
 
 Preset = Literal["paac", "v5", "none"]
 Backend = Literal["envpool", "parallel", "serial", "single"]
+ObsDtype = Literal["float32", "float16", "bfloat16"]  # an observation frame's dtype
 SCREEN = 84  # observations are SCREEN x SCREEN
 
 
@@ -289,7 +290,7 @@ def make_atari_env(
     module: str | None = None,
     fdr: Literal["rgb", "gray", "none"] = "rgb",
     edr: EDR | None = None,
-    obs_dtype: Literal["float32", "float16"] = "float32",
+    obs_dtype: ObsDtype = "float32",
     keep_inputs: bool = True,
     frame_ring: int | None = None,
 ) -> TransformedEnv:
@@ -324,8 +325,8 @@ def make_atari_env(
     transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"])]
     if preset == "paac" and train:
         transforms.append(SignTransform(in_keys=["reward"]))
-    if obs_dtype not in ("float32", "float16"):
-        raise ValueError(f"obs_dtype must be float32 or float16, got {obs_dtype!r}")
+    if obs_dtype not in get_args(ObsDtype):
+        raise ValueError(f"obs_dtype must be float32, float16 or bfloat16, got {obs_dtype!r}")
     transforms.append(
         ObservationFrame(
             fdr, edr, keep_parts=keep_inputs, ring=frame_ring, dtype=getattr(torch, obs_dtype)

@@ -19,6 +19,7 @@ from torch import nn
 from torchrl.envs import EnvBase
 
 from edr.models.paac import PAACNetwork
+from edr.models.precision import autocast
 from edr.rl.phases import PhaseClock
 
 
@@ -89,8 +90,9 @@ class Actor:
             older = [torch.where(restart, new, frame) for frame in older]
         return [*older, new]
 
-    def _act(self, td: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """Sample the action of every env at step ``td``; -> logits (N, A) and value (N, 1)."""
+    def _act(self, td: TensorDictBase, greedy: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """The action of every env at step ``td``, sampled from the policy (or its most probable
+        one, ``greedy``); -> logits (N, A) and value (N, 1)."""
         self._frames = self._input(td)
         logits, value, self._h, self._c = self.network(
             self._frames, self._h, self._c, td["is_init"]
@@ -98,7 +100,7 @@ class Actor:
         probs = logits.detach().reshape(-1, self.num_actions).softmax(-1)
         if not bool(torch.isfinite(probs).all()):  # multinomial would fail with a trace
             raise FloatingPointError("the policy's action probabilities are NaN or inf")
-        action = torch.multinomial(probs, 1).squeeze(-1)  # (N,)
+        action = probs.argmax(-1) if greedy else torch.multinomial(probs, 1).squeeze(-1)  # (N,)
         one_hot = torch.nn.functional.one_hot(action, self.num_actions)
         td["action"] = one_hot.reshape(*td.batch_size, self.num_actions)
         return logits, value
@@ -108,21 +110,25 @@ class Actor:
         td = self._state()
         self._h, self._c = self._h.detach(), self._c.detach()  # truncated backpropagation
         logits, values, actions, rewards, dones, scores = [], [], [], [], [], []
-        for _ in range(steps):
-            with self.clock.phase("forward"):
-                step_logits, value = self._act(td)
-            actions.append(td["action"].argmax(-1))
-            with self.clock.phase("env"):
-                out, td = self.env.step_and_maybe_reset(td)
-            done = out["next", "done"].reshape(-1, 1)
-            logits.append(step_logits.reshape(done.shape[0], -1))
-            values.append(value.reshape(-1, 1))
-            rewards.append(out["next", "reward"].reshape(-1, 1))
-            dones.append(done)
-            if done.any():
-                scores += out["next", "episode_reward"].reshape(-1, 1)[done].tolist()
-        with torch.no_grad(), self.clock.phase("forward"):
-            _, bootstrap, _, _ = self.network(self._input(td), self._h, self._c, td["is_init"])
+        # one autocast region for the whole rollout: a bfloat16 network's weights are cast once,
+        # not at every step (they change only in the update after it)
+        with autocast(getattr(self.network, "precision", "float32")):
+            for _ in range(steps):
+                with self.clock.phase("forward"):
+                    step_logits, value = self._act(td)
+                actions.append(td["action"].argmax(-1))
+                with self.clock.phase("env"):
+                    out, td = self.env.step_and_maybe_reset(td)
+                done = out["next", "done"].reshape(-1, 1)
+                logits.append(step_logits.reshape(done.shape[0], -1))
+                values.append(value.reshape(-1, 1))
+                rewards.append(out["next", "reward"].reshape(-1, 1))
+                dones.append(done)
+                if done.any():
+                    scores += out["next", "episode_reward"].reshape(-1, 1)[done].tolist()
+            with torch.no_grad(), self.clock.phase("forward"):
+                inputs = self._input(td)
+                _, bootstrap, _, _ = self.network(inputs, self._h, self._c, td["is_init"])
         self._td = td
         return Rollout(
             logits=torch.stack(logits, 1),
@@ -135,17 +141,21 @@ class Actor:
         )
 
     @torch.no_grad()
-    def play(self, max_steps: int, on_end: Callable[[int], object] | None = None) -> list[float]:
-        """One whole game on every env at once, from a reset; their raw scores. A game still on
-        after ``max_steps`` agent steps counts what it scored so far; an env whose game ended
-        plays on (the batch steps together) and its later rewards are not counted.
-        ``on_end(k)`` hears of the k games that ended at each step (a progress bar's update)."""
+    def play(
+        self, max_steps: int, greedy: bool = False, on_end: Callable[[int], object] | None = None
+    ) -> list[float]:
+        """One whole game on every env at once, from a reset; their raw scores. The actions are
+        sampled from the policy, as in training, or its most probable ones (``greedy``). A game
+        still on after ``max_steps`` agent steps counts what it scored so far; an env whose game
+        ended plays on (the batch steps together) and its later rewards are not counted.
+        ``on_end(k)`` hears of the k games that ended at each step (a progress bar's update).
+        The network plays as it is: its caller puts it in eval mode."""
         self._td = None
         td = self._state()
         n = td.batch_size.numel()
         scores, playing = torch.zeros(n), torch.ones(n, dtype=torch.bool)
         for _ in range(max_steps):
-            self._act(td)
+            self._act(td, greedy)
             out, td = self.env.step_and_maybe_reset(td)
             scores += out["next", "reward"].reshape(n) * playing
             ended = playing & out["next", "done"].reshape(n)

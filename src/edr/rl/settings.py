@@ -17,11 +17,13 @@ from edr.checks.config import (
     PositiveInt,
 )
 from edr.models.paac import Core, Init, InputNorm
+from edr.models.precision import PrecisionChoice
 from edr.representations import EDR
 from edr.rl.envs import AtariGame, Backend, Preset
 from edr.rl.optim import OptimizerName
 
 Inputs = Literal["fdr", "fdr_edr", "edr"]
+EvalPolicy = Literal["sample", "greedy"]
 BackendChoice = Backend | Literal["auto"]
 
 
@@ -40,7 +42,8 @@ class EnvSettings:
     fdr: Literal["rgb", "gray"] = "rgb"  # the frames' colour
     edr: EDR | None = None  # the EDR layer computed on the fly
     frame_stack: PositiveInt = 4  # agent steps the network sees at once
-    obs_dtype: Literal["float16", "float32"] = "float32"  # the observation's dtype
+    obs_dtype: Literal["float16", "float32"] = "float32"  # the observation's dtype (bfloat16
+    # frames come by themselves where the network computes in bfloat16)
 
     @property
     def name(self) -> str:
@@ -69,6 +72,7 @@ class NetworkSettings:
     core: Core = "none"  # none (feed-forward PAAC), ftlstm (the paper's), lstm, lenet_ftlstm
     init: Init = "fan_in"  # fan_in (PAAC's TensorFlow code) or orthogonal (OpenAI's A2C)
     input_norm: InputNorm = "batchnorm"  # batchnorm (batch statistics), raw or centred frames
+    precision: PrecisionChoice = "float32"  # float32, bfloat16 (autocast) or auto (timed)
 
 
 @dataclass(frozen=True)
@@ -108,6 +112,7 @@ class EvalSettings:
 
     plays: PositiveInt = 30  # whole games, played at once on as many envs
     max_steps: PositiveInt = 27_000  # agent steps at most per game
+    policy: EvalPolicy = "sample"  # sample: actions drawn from the policy (PAAC's); greedy: argmax
 
     @property
     def capped(self) -> bool:

@@ -131,7 +131,7 @@ class ObservationFrame(_PerEnvStream):
     Pixels other than uint8, or an EDR the kernel cannot run (``fast=False``, learnable,
     float64), take torch's path, to the same numbers. ``dtype=torch.float16`` halves the bytes
     each step hands on (the frame is computed in float32, then rounded; the network converts it
-    back). ``keep_parts`` also writes ``fdr`` and ``edr``: views of the frame's channels.
+    back); ``torch.bfloat16`` is what a network computing in bfloat16 takes as it is. ``keep_parts`` also writes ``fdr`` and ``edr``: views of the frame's channels.
 
     ``ring=k`` writes the frames into ``k`` buffers in turn instead of a new tensor each step
     (the page faults of a fresh tensor each step), so a frame is overwritten ``k`` steps after it
@@ -151,8 +151,8 @@ class ObservationFrame(_PerEnvStream):
         dtype: torch.dtype = torch.float32,
     ) -> None:
         super().__init__([in_key], [out_key])
-        if dtype not in (torch.float32, torch.float16):
-            raise ValueError(f"the frame's dtype must be float32 or float16, got {dtype}")
+        if dtype not in (torch.float32, torch.float16, torch.bfloat16):
+            raise ValueError(f"the frame's dtype must be float32, float16 or bfloat16, got {dtype}")
         if fdr not in ("rgb", "gray", "none"):
             raise ValueError(f"fdr must be rgb, gray or none, got {fdr!r}")
         if fdr == "none" and edr is None:

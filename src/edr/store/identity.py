@@ -45,7 +45,8 @@ PACKAGED_INTO = {"ablation": "representation"}
 # that target sits (EDR: task.representation, task.env.edr, task.representations.*), so adding
 # a setting to the config with its default keeps old runs' identities.
 ADDED_DEFAULTS: dict[str, dict[str, Any]] = {
-    "edr.rl.settings.NetworkSettings": {"input_norm": "raw"},
+    "edr.rl.settings.NetworkSettings": {"input_norm": "raw", "precision": "float32"},
+    "edr.rl.settings.EvalSettings": {"policy": "sample"},
     "edr.tasks.recognition.train_recognition": {"normalize_input": False},
     "edr.representations.EDR": {
         "parameterization": "log",

@@ -35,6 +35,7 @@ from tqdm import tqdm
 
 from edr.data import read_video, synthetic_scene
 from edr.models.paac import Core
+from edr.models.precision import PRECISION_CHOICES
 from edr.report.published import load_published
 from edr.report.speed import INFERENCE_IN_TURN, LEARNABLE, TRAIN_FUSED, TRAIN_TORCH, speed_table
 from edr.representations import (
@@ -288,6 +289,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--network", default=None, choices=get_args(Core),
         help="the training loop's core (--atari; default: task=atari's)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--precision", default=None, choices=PRECISION_CHOICES,
+        help="the training loop's network precision (--atari; default: task=atari's)",
     )  # fmt: skip
     parser.add_argument(
         "--steps", type=int, default=200, help="agent steps per timed rollout (--atari)"

@@ -17,6 +17,7 @@ from typing import Any
 from tqdm import tqdm
 
 from edr.models.paac import Core
+from edr.models.precision import PrecisionChoice
 from edr.report.speed import atari_cost_table
 from edr.representations import EDR
 from edr.store.atomic import write_json_atomic
@@ -45,18 +46,20 @@ BACKEND_NAMES = {"envpool": "EnvPool (torchrl EnvBase)", "parallel": "torchrl Pa
 
 def training_throughput(
     game: str, num_envs: int, backend: str, env_steps: int, inputs: str = "fdr_edr",
-    core: Core | None = None,
+    core: Core | None = None, precision: PrecisionChoice | None = None,
 ) -> tuple[float, float, dict[str, float]]:  # fmt: skip
     """Env steps/s of ``task=atari``'s training loop (``inputs``: FDR RGB + EDR gray or FDR RGB;
     ``core``: the network's, the task's default if None, with one frame per step for
-    ``lenet_ftlstm``; its defaults otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
+    ``lenet_ftlstm``; ``precision`` the network's, the task's default if None; its defaults
+    otherwise) over ``env_steps`` env steps: from the first rollout on, as its progress
     bar shows them, and steady (from a quarter of the way on, after the first updates compiled
     the EDR kernels and warmed the allocator: what a run of hours sees); and where the steady
     part's time went, ms per update by phase (``time/*_ms`` of its history)."""
     from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings
     from edr.tasks.atari import HISTORY, train_paac
 
-    network = NetworkSettings() if core is None else NetworkSettings(core=core)
+    chosen = {"core": core, "precision": precision}
+    network = NetworkSettings(**{k: v for k, v in chosen.items() if v is not None})
     with tempfile.TemporaryDirectory() as out_dir:
         env = EnvSettings(
             game=game, backend=backend, num_envs=num_envs, inputs=inputs,
@@ -160,6 +163,7 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
 
     stamp, machine = time.strftime("%Y-%m-%d_%H-%M-%S"), machine_info()
     core = args.network or NetworkSettings().core  # the record names the core it timed
+    precision = args.precision or NetworkSettings().precision  # and the precision
     records = []
     for backend in args.backends.split(","):
         result = atari_throughput(
@@ -170,14 +174,14 @@ def run_atari_bench(args: argparse.Namespace, repeats: int) -> None:
             fps = (None, None, {})
             if args.train_frames:
                 fps = training_throughput(
-                    args.game, args.atari, backend, args.train_frames, inputs, core
+                    args.game, args.atari, backend, args.train_frames, inputs, core, precision
                 )
             training[key], training[f"{key}_steady"], training[f"{key}_phases_ms"] = fps
         record = {"kind": "atari_throughput", "git": git_revision(), "measured_at": stamp,
                   "game": args.game, "num_envs": args.atari, "backend": backend,
                   "obs_dtype": args.obs_dtype,
                   "repeats": repeats, "warmup": args.warmup, "steps": args.steps,
-                  "train_frames": args.train_frames, "network": core, **training,
+                  "train_frames": args.train_frames, "network": core, "precision": precision, **training,
                   "machine": machine, **asdict(result), "cost": result.cost}  # fmt: skip
         name = f"atari_{backend}_{machine['hostname']}_{stamp}.json"
         records.append((write_json_atomic(args.out_dir / name, record), record))

@@ -13,6 +13,7 @@ each is 4 emulator frames.
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from collections import deque
@@ -30,6 +31,7 @@ from edr.checks import interrupts
 from edr.checks.config import ConfigError, PositiveInt, check_memory
 from edr.models.dead_units import DeadUnits
 from edr.models.paac import PAACNetwork
+from edr.models.precision import Precision, choose_precision
 from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.learner import Diverged, Learner
@@ -98,17 +100,22 @@ def train_paac(
     env_kwargs = _env_kwargs(env)
     net, arguments, observation = _network(env_kwargs, network, env.frame_stack)
     _check_memory(env, loss.rollout_steps, evaluation.plays, observation)
-    clock = PhaseClock()  # where each update's time goes, into the history
-    envs = _training_envs(env, loss, env_kwargs, backend, seed, clock)
-    learner = Learner(net, loss, optim, env.num_envs * loss.rollout_steps, clock)
     fingerprint = (
         rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
     )
     checkpoint = out_dir / CHECKPOINT
-    steps_done, history = 0, []
-    if resume:
-        state = load_checkpoint(checkpoint)
+    state = load_checkpoint(checkpoint) if resume else None
+    if state is not None:
         check_same_data(state, fingerprint, checkpoint)  # the same ROM (or env) it trained on
+    precision = _precision(net, network, state, env.num_envs * loss.rollout_steps, observation,
+                           env.frame_stack)  # fmt: skip
+    arguments["precision"] = net.precision
+    env_kwargs = _frames_for(net, env_kwargs)
+    clock = PhaseClock()  # where each update's time goes, into the history
+    envs = _training_envs(env, loss, env_kwargs, backend, seed, clock)
+    learner = Learner(net, loss, optim, env.num_envs * loss.rollout_steps, clock)
+    steps_done, history = 0, []
+    if state is not None:
         restore(state, learner.parts)  # episodes in progress restart
         steps_done, history = state["env_steps"], state["history"]
     progress = _TrainingLog(
@@ -118,7 +125,8 @@ def train_paac(
 
     def save() -> None:
         save_checkpoint(checkpoint, learner.parts, env_steps=progress.steps_done,
-                        history=progress.history, **{DATA_FINGERPRINT: fingerprint})  # fmt: skip
+                        history=progress.history, precision=net.precision,
+                        **{DATA_FINGERPRINT: fingerprint})  # fmt: skip
 
     try:
         actor = Actor(envs, net, env.frame_stack, clock)
@@ -142,6 +150,7 @@ def train_paac(
         "data/game": env.name,
         "data/fingerprint": fingerprint,
         **_training_metrics(history, progress.steps_done, learner.losses),
+        **precision,
         **evaluated,
         **diverged,
     }
@@ -175,7 +184,57 @@ def _evaluation(
                   evaluation)
         if evaluation.capped and scores else None
     )  # fmt: skip
-    return scores, {**_score_metrics(scores), **_random_metrics(random_scores, evaluation)}
+    return scores, {**_score_metrics(scores), **_random_metrics(random_scores, evaluation),
+                    **_evaluation_mode(evaluation)}  # fmt: skip
+
+
+def _evaluation_mode(evaluation: EvalSettings) -> dict[str, str]:
+    """How the evaluation played, for the record: the network in eval mode (batch-normed frames
+    by training's running statistics; records without this key played in training mode, each
+    batch of games normalised by its own frames) and the policy (sampled or greedy)."""
+    return {"eval/network_mode": "eval", "eval/policy": evaluation.policy}
+
+
+def _precision(
+    net: PAACNetwork, network: NetworkSettings, state: dict[str, Any] | None, batch: int,
+    observation: tuple[int, ...], frame_stack: int,
+) -> dict[str, Any]:  # fmt: skip
+    """Set ``net``'s precision: ``network.precision``, where ``auto`` is the checkpoint's choice
+    on a resumed run (a run keeps one precision) and else :func:`choose_precision` timing one
+    forward and backward pass of ``batch`` observations (C, H, W) (an update's). The record's
+    ``train/precision`` part: the precision, and the times that chose it."""
+    choice = network.precision
+    if choice == "auto" and state is not None and "precision" in state:
+        choice = state["precision"]
+    noise = torch.Generator().manual_seed(0)  # the run's own random streams stay untouched
+    frames = [torch.rand(batch, *observation, generator=noise).contiguous(
+        memory_format=torch.channels_last) for _ in range(frame_stack)]  # fmt: skip
+    zeros, starts = torch.zeros(batch, net.state_size), torch.zeros(batch, 1, dtype=torch.bool)
+    probe = copy.deepcopy(net)  # timed on a copy: the net's running statistics stay its own
+
+    def update(precision: Precision) -> None:
+        probe.precision = precision
+        logits, value, _, _ = probe(frames, zeros, zeros, starts)
+        (logits.sum() + value.sum()).backward()
+
+    net.precision, timed = choose_precision(choice, update)
+    if timed:
+        log.info("precision auto: %s (update %.1f ms in float32, %.1f ms in bfloat16)",
+                 net.precision, timed["float32_ms"], timed["bfloat16_ms"])  # fmt: skip
+    return {
+        "train/precision": net.precision,
+        **{f"train/precision_{k}": v for k, v in timed.items()},
+    }
+
+
+def _frames_for(net: PAACNetwork, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``env_kwargs`` with the frames in bfloat16 where ``net`` computes in bfloat16 and the
+    frames would be float32: autocast would round each frame to bfloat16 at every forward pass
+    that sees it (4 a frame); the env rounds it once, and the convolutions see the same numbers
+    (batch normalisation's statistics are then those of the rounded frames)."""
+    if net.precision == "bfloat16" and env_kwargs["obs_dtype"] == "float32":
+        return {**env_kwargs, "obs_dtype": "bfloat16"}
+    return env_kwargs
 
 
 def _training_envs(
@@ -324,7 +383,7 @@ def _check_memory(
 ) -> None:
     """Refuse env counts whose observations cannot fit in memory: the frames the training envs
     hold at once, and one step's stacked input of the evaluation games (one env per game)."""
-    frame = int(np.prod(observation)) * (2 if env.obs_dtype == "float16" else 4)  # bytes
+    frame = int(np.prod(observation)) * (2 if env.obs_dtype == "float16" else 4)  # bytes, at most
     held = observations_held(rollout_steps, env.frame_stack)
     check_memory(
         f"task.env.num_envs={env.num_envs}, task.loss.rollout_steps={rollout_steps}, "
@@ -390,14 +449,21 @@ def _evaluate(
 ) -> list[float]:  # fmt: skip
     """Raw scores of ``settings.plays`` whole games (no life loss, no clipping), played at once
     on as many envs: EnvPool's when training used it, else serial (the network steps them as
-    one batch)."""
+    one batch). The network plays in eval mode: batch-normed frames by the running statistics
+    training left, not by the statistics of the games played together, which it leaves as they
+    were; its actions sampled from the policy or greedy (``settings.policy``)."""
     backend = "envpool" if backend == "envpool" else "serial"
     env = _env(num_envs=settings.plays, backend=backend, train=False, **env_kwargs)
     env.set_seed(seed + 1)
+    was_training = network.training
+    network.eval()
     try:
         with tqdm(total=settings.plays, desc="evaluation", unit="game", leave=False) as bar:
-            return Actor(env, network, frame_stack).play(settings.max_steps, on_end=bar.update)
+            return Actor(env, network, frame_stack).play(
+                settings.max_steps, greedy=settings.policy == "greedy", on_end=bar.update
+            )
     finally:
+        network.train(was_training)
         env.close()
 
 
@@ -429,22 +495,27 @@ def load_network(run_dir: str | Path) -> PAACNetwork:
 def evaluate_checkpoint(
     run_dir: str | Path, plays: int | None = None, trust_env_module: bool = False
 ) -> dict[str, Any]:
-    """Score the network of an Atari run's latest checkpoint, for a run stopped before its end.
+    """Score an Atari run's network again: its latest checkpoint (a run stopped before its end),
+    else the trained ``network.pt`` (a finished run, such as those kept behind Table 1).
 
     Rebuilds the envs and network from the run's record (``run.json``), plays ``plays`` games
-    (the run's ``evaluation.plays`` by default) as the run would have, and writes
-    ``eval_scores.json``, ``history.json``, the training curve and ``checkpoint_eval.json``
-    (these metrics, with the env steps the checkpoint had trained) beside the record. Returns
-    the metrics. The record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and a
-    module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is
-    imported only with ``trust_env_module``.
+    (the run's ``evaluation.plays`` by default) as the run's evaluation does, the network in
+    eval mode. From a checkpoint it writes ``eval_scores.json``, ``history.json``, the training
+    curve and ``checkpoint_eval.json`` (these metrics, with the env steps the checkpoint had
+    trained) beside the record; from ``network.pt`` only ``network_eval.json`` (the metrics and
+    every game's score), so the run's own evaluation stays as it was. Returns the metrics. The
+    record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and a module it names
+    (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is imported only
+    with ``trust_env_module``.
     """
     run_dir = Path(run_dir)
     record = read_record(run_dir / "run.json")
-    if not (run_dir / CHECKPOINT).is_file():
+    source = next((run_dir / n for n in (CHECKPOINT, NETWORK) if (run_dir / n).is_file()), None)
+    if source is None:
         raise FileNotFoundError(
             f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
-            "updates and where Ctrl-C or SIGTERM stops it"
+            f"updates and where Ctrl-C or SIGTERM stops it (nor the {NETWORK} a finished run "
+            "leaves)"
         )
     node = record.get("config", {})
     if not isinstance(node, dict) or not isinstance(node.get("task"), dict):
@@ -460,16 +531,28 @@ def evaluate_checkpoint(
             "if you trust it"
         )
     evaluation = task["evaluation"]
-    env_kwargs = _env_kwargs(env)
-    network, _, _ = _network(env_kwargs, task["network"], env.frame_stack)
-    state = load_checkpoint(run_dir / CHECKPOINT)
-    network.load_state_dict(state["network"])
     if plays is not None:
         evaluation = replace(evaluation, plays=plays)
+    env_kwargs = _env_kwargs(env)
+    network, _, _ = _network(env_kwargs, task["network"], env.frame_stack)
+    state = load_checkpoint(source)
+    weights = state["network"] if source.name == CHECKPOINT else state["state_dict"]
+    network.load_state_dict(weights)
+    network.precision = (
+        state.get("precision") if source.name == CHECKPOINT else state["arguments"].get("precision")
+    ) or "float32"  # runs from before the precision setting trained in float32
+    env_kwargs = _frames_for(network, env_kwargs)
     scores = _evaluate(
         network, env_kwargs, env.frame_stack, env.resolved_backend(), record["seed"], evaluation
     )
-    _write_results(run_dir, state["history"], scores, f"{env.name}, inputs={env.inputs}")
-    metrics = {"train/env_steps": state["env_steps"], **_score_metrics(scores)}
+    title = f"{env.name}, inputs={env.inputs}"
+    if source.name == NETWORK:
+        metrics = {"train/env_steps": record.get("metrics", {}).get("train/env_steps"),
+                   **_score_metrics(scores), **_evaluation_mode(evaluation)}  # fmt: skip
+        write_json_atomic(run_dir / "network_eval.json", {**metrics, "scores": scores})
+        return metrics
+    _write_results(run_dir, state["history"], scores, title)
+    metrics = {"train/env_steps": state["env_steps"], **_score_metrics(scores),
+               **_evaluation_mode(evaluation)}  # fmt: skip
     write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
     return metrics
