@@ -73,8 +73,12 @@ def _real_video(tmp: Path) -> Path:
     """A stand-in for ``../shared/real-video``: generated videos in its ``kth/`` and ``ucf101/``,
     40 frames each (a split in time of debug=tiny's 8-frame clips needs 40)."""
     size = {"frames": 40, "height": 60, "width": 80}
-    write_synthetic_kth(tmp / "real-video" / "kth", persons=1, scenarios=1, **size)
+    kth = write_synthetic_kth(tmp / "real-video" / "kth", persons=2, scenarios=1, **size)
     write_synthetic_ucf101(tmp / "real-video" / "ucf101", groups=1, clips=1, **size)
+    sequences = tmp / "real-video" / "splits" / "kth" / "00sequences.txt"  # KTH's sub-sequences
+    sequences.parent.mkdir(parents=True)
+    sequences.write_text("".join(f"{v.name.removesuffix('_uncomp.avi')}\t\tframes\t1-20, 21-40\n"
+                                 for v in sorted(kth.glob("*/*.avi"))))  # fmt: skip
     return tmp / "real-video"
 
 

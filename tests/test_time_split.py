@@ -4,7 +4,6 @@ on generated video in KTH's and UCF-101's layouts and on the real KTH clips of
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -18,10 +17,8 @@ from edr.data.synthetic import KTH_ACTIONS, write_synthetic_kth, write_synthetic
 from edr.run import run
 from edr.store.records import read_record
 from edr.tasks.recognition import load_model
+from real_video import REAL_VIDEO
 
-REAL_VIDEO = Path(
-    os.environ.get("EDR_REAL_VIDEO", Path(__file__).resolve().parents[2] / "shared" / "real-video")
-)
 DRAWS = 40  # training clips drawn per video
 
 

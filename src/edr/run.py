@@ -14,7 +14,6 @@ import errno
 import inspect
 import logging
 import os
-import random
 import sys
 import time
 from functools import partial
@@ -22,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import CompactHydraException, InstantiationException
@@ -56,6 +54,7 @@ from edr.store.records import (
     write_last_record,
     write_record,
 )
+from edr.tasks.seeds import seed_everything
 
 # The entry point's own keys, checked like a task's arguments.
 INTERNAL_GROUPS = {"hydra", "recognition", "paths"}  # composed by the configs, not picked by users
@@ -82,12 +81,6 @@ def user_groups(conf_dir: Path) -> str:
         options = sorted(f.stem for f in group.glob("*.yaml") if not (parts and "_" in f.stem))
         lines.append(f"  {group.name}: {', '.join(options)}")
     return "\n".join(lines)
-
-
-def seed_everything(seed: int) -> None:
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
 
 
 def _hydra_context() -> tuple[dict[str, str], list[str]]:

@@ -185,7 +185,11 @@ class ClipDataset(Dataset):
 
     One item per video: a training clip drawn at random in time, or the test stack of its first
     frames. Split in time (``videos.time_split``), a training clip is drawn from the video's
-    training part only, and its test part gives consecutive test stacks, one item each.
+    training part only, and its test part gives consecutive test stacks, one item each. A video
+    with sub-sequences (``Video.segments``, KTH's 00sequences.txt) gives its training clips from
+    within one of them (drawn in proportion to the clips each holds) and a test stack at the
+    start of each that holds a clip, one item each; a video none of whose sub-sequences holds a
+    clip is used whole.
     ``shuffle_frames``: each clip's frames in a random order (a new one per training draw, a
     fixed one per test item), so that only what single frames show can tell classes apart.
     """
@@ -208,20 +212,34 @@ class ClipDataset(Dataset):
         self.shuffle_frames = shuffle_frames
         self.items = self._items()  # (video index, first frame of a test stack or None)
 
-    def _window(self, video: Video, length: int) -> range:
-        """The frames of ``video`` (``length`` of them) that this set's clips may use."""
-        if self.videos.time_split is None:
-            return range(length)
-        return self.videos.time_split.window(length, self.frames, str(video.path))
+    def _windows(self, video: Video, length: int) -> list[range]:
+        """The stretches of ``video`` (``length`` frames) that this set's clips may come from."""
+        if self.videos.time_split is not None:
+            return [self.videos.time_split.window(length, self.frames, str(video.path))]
+        parts = [range(a, min(b, length)) for a, b in video.segments]
+        return [p for p in parts if len(p) >= self.frames] or [range(length)]
 
     def _items(self) -> list[tuple[int, int | None]]:
-        if self.train or self.videos.time_split is None:
+        if self.train or (self.videos.time_split is None and not self._segmented()):
             return [(i, None) for i in range(len(self.videos))]
         items = []
         for i, video in enumerate(self.videos.videos):
-            part = self._window(video, len(self.source(video.path)))
-            items += [(i, s) for s in range(part.start, part.stop - self.frames + 1, self.frames)]
+            for part in self._windows(video, len(self.source(video.path))):
+                step = self.frames if self.videos.time_split is not None else len(part)
+                items += [(i, s) for s in range(part.start, part.stop - self.frames + 1, step)]
         return items
+
+    def _segmented(self) -> bool:
+        return any(video.segments for video in self.videos.videos)
+
+    def _training_window(self, video: Video, length: int) -> range:
+        """One stretch to draw a training clip from: of several, each with the odds of the
+        clips it holds."""
+        parts = self._windows(video, length)
+        if len(parts) == 1:
+            return parts[0]
+        weights = torch.tensor([max(len(p) - self.frames + 1, 1) for p in parts], dtype=torch.float)
+        return parts[int(torch.multinomial(weights, 1))]
 
     def __len__(self) -> int:
         return len(self.items)
@@ -230,9 +248,12 @@ class ClipDataset(Dataset):
         i, start = self.items[index]
         video = self.videos.videos[i]
         array = self.source(video.path)  # (T, C, H, W), memory-mapped where cached on disk
-        part = self._window(video, len(array))
         if start is not None:
             part = range(start, start + self.frames)
+        elif self.train:
+            part = self._training_window(video, len(array))
+        else:
+            part = range(len(array))
         frames = torch.from_numpy(np.array(array[part.start : part.stop]))
         if self.train:
             clip = random_clip(frames, self.frames, self.crop, self.scales, self.negate)

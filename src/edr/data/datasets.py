@@ -12,6 +12,7 @@ UCF-101::
 KTH::
 
     <root>/<action>/personXX_<action>_dY_uncomp.avi   6 actions, persons 01-25, scenarios d1-d4
+    00sequences.txt (optional, any path)              each video's four sub-sequences
 
 Either set can also be split in time (``protocol="time"``, not the paper's protocol): every
 video serves both, its first part for training and its last part for testing (:class:`TimeSplit`);
@@ -27,11 +28,18 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 
-from edr.checks.config import ConfigError, Fraction, OpenFraction, check_memory
+from edr.checks.config import (
+    ConfigError,
+    Fraction,
+    NonNegativeInt,
+    OpenFraction,
+    Range,
+    check_memory,
+)
 from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
 from edr.data.video import UnreadableVideo, check_video_file
@@ -47,6 +55,7 @@ KTH_LAYOUT = (
 log = logging.getLogger(__name__)
 UCF_GROUP = re.compile(r"_g(\d+)_c\d+")
 KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.avi$")
+KTH_SEQUENCE = re.compile(r"^(person\d\d_[a-z]+_d\d)\s+frames\s+(\d.*)$")
 # Schuldt et al. (2004): training + validation persons, and the test persons.
 KTH_TRAIN_PERSONS = (11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 23, 24, 25, 1, 4)
 KTH_TEST_PERSONS = (22, 2, 3, 5, 6, 7, 8, 9, 10)
@@ -59,6 +68,7 @@ class Video:
     path: Path
     label: int  # 0-based class index
     group: str  # what must not straddle train and test: UCF group, KTH person
+    segments: tuple[tuple[int, int], ...] = ()  # where the action is: [start, stop) frames
 
 
 @dataclass(frozen=True)
@@ -94,6 +104,7 @@ class VideoSet:
     classes: tuple[str, ...]
     index_files: tuple[Path, ...] = ()  # files that define the split (UCF-101's lists)
     time_split: TimeSplit | None = None  # split in time: which part of each video to use
+    person_fold: tuple[int, int] | None = None  # split by person: (this fold, of how many)
 
     def __len__(self) -> int:
         return len(self.videos)
@@ -228,21 +239,35 @@ def kth(
     root: str | Path,
     *,
     train: bool = True,
-    protocol: Literal["random", "person", "time"] = "random",
+    protocol: Literal["random", "person", "person_folds", "time"] = "random",
     train_fraction: OpenFraction = 0.75,
     seed: int = 0,
+    actions: Sequence[str] | None = None,
+    folds: Annotated[int, Range(2)] = 2,
+    fold: NonNegativeInt = 0,
+    sequences: str | Path | None = None,
 ) -> VideoSet:
     """KTH's videos; ``protocol="random"``: the paper's seeded 75/25 random split of the videos,
-    ``"person"``: the standard split by person (Schuldt et al. 2004), ``"time"``: every video,
-    split in time (:class:`TimeSplit`; ``train_fraction`` of each video's frames trains)."""
+    ``"person"``: the standard split by person (Schuldt et al. 2004), ``"person_folds"``: the
+    persons dealt into ``folds`` folds (:func:`person_folds`), fold ``fold``'s persons testing
+    and the others training, so that over the folds every video is tested once by a network
+    that never saw its person; ``"time"``: every video, split in time (:class:`TimeSplit`;
+    ``train_fraction`` of each video's frames trains). ``actions``: the classes (default all
+    six, in KTH's order). ``sequences``: KTH's ``00sequences.txt``, whose sub-sequences then
+    bound where clips are taken (the frames between them show no action)."""
     root = Path(root)
+    actions = tuple(actions) if actions else KTH_ACTIONS
+    unknown = sorted(set(actions) - set(KTH_ACTIONS))
+    if unknown:
+        raise ConfigError(f"task.videos.actions: {unknown} are not KTH actions ({KTH_ACTIONS})")
     if not root.is_dir():
         raise _missing(root, "KTH root", KTH_LAYOUT)
-    absent = [a for a in KTH_ACTIONS if not (root / a).is_dir()]
+    absent = [a for a in actions if not (root / a).is_dir()]
     if absent:
         raise _missing(root, f"action folders {absent}", KTH_LAYOUT)
+    segments = read_kth_sequences(Path(sequences)) if sequences else {}
     videos = []
-    for label, action in enumerate(KTH_ACTIONS):
+    for label, action in enumerate(actions):
         found = _visible(root / action)
         if not any(p.suffix == ".avi" for p in found):
             raise DataLayoutError(
@@ -255,9 +280,20 @@ def kth(
                     f"{path}: not a KTH video file name ({KTH_LAYOUT}): rename, convert or "
                     "remove it"
                 )
-            videos.append(Video(_checked_video(path, str(root / action)), label, match.group(1)))
+            name = path.name.removesuffix("_uncomp.avi")
+            if segments and name not in segments:
+                raise DataLayoutError(f"{sequences} has no line for {name} ({path})")
+            checked = _checked_video(path, str(root / action))
+            videos.append(Video(checked, label, match.group(1), segments.get(name, ())))
+    index = (Path(sequences),) if sequences else ()
     if protocol == "time":
-        return VideoSet(tuple(videos), KTH_ACTIONS, time_split=TimeSplit(train, train_fraction))
+        return VideoSet(tuple(videos), actions, index, time_split=TimeSplit(train, train_fraction))
+    if protocol == "person_folds":
+        if fold >= folds:
+            raise ConfigError(f"task.videos.fold={fold}: the folds are 0 to {folds - 1}")
+        dealt = person_folds(videos, folds)
+        chosen = [v for v in videos if (dealt[v.group] == fold) != train]
+        return VideoSet(tuple(chosen), actions, index, person_fold=(fold, folds))
     if protocol == "person":
         persons = {f"{p:02d}" for p in (KTH_TRAIN_PERSONS if train else KTH_TEST_PERSONS)}
         chosen = [v for v in videos if v.group in persons]
@@ -267,7 +303,9 @@ def kth(
         keep = order[:cut] if train else order[cut:]
         chosen = [videos[i] for i in sorted(keep)]
     else:
-        raise ValueError(f"protocol must be 'random', 'person' or 'time', got {protocol!r}")
+        raise ValueError(
+            f"protocol must be 'random', 'person', 'person_folds' or 'time', got {protocol!r}"
+        )
     if not chosen:
         how = (
             f"train_fraction={train_fraction} of the {len(videos)} videos"
@@ -278,7 +316,58 @@ def kth(
             f"task.videos: the {how} under {root} leaves no {'train' if train else 'test'} "
             "video: change task.videos.train_fraction or protocol, or add videos"
         )
-    return VideoSet(tuple(chosen), KTH_ACTIONS)
+    return VideoSet(tuple(chosen), actions, index)
+
+
+def read_kth_sequences(path: Path) -> dict[str, tuple[tuple[int, int], ...]]:
+    """KTH's ``00sequences.txt``: video name (``person01_boxing_d1``) -> its sub-sequences as
+    0-based ``[start, stop)`` frame ranges (the file's are 1-based and inclusive). Lines that
+    are not a video's (the header) are skipped; a video line that does not read is refused."""
+    if not path.is_file():
+        raise DataLayoutError(f"{path}: no such file (KTH's 00sequences.txt)")
+    table = {}
+    for n, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        match = KTH_SEQUENCE.match(line.strip())
+        if match is None:
+            continue
+        ranges = []
+        for part in match.group(2).split(","):
+            bounds = part.strip().split("-")
+            if len(bounds) != 2 or not all(b.isdigit() for b in bounds):
+                raise DataLayoutError(
+                    f"{path}:{n}: expected ranges like '1-95, 96-185', got {line!r}"
+                )
+            first, last = map(int, bounds)
+            if not 1 <= first <= last:
+                raise DataLayoutError(
+                    f"{path}:{n}: the range {part.strip()!r} is empty or before 1"
+                )
+            ranges.append((first - 1, last))
+        table[match.group(1)] = tuple(ranges)
+    if not table:
+        raise DataLayoutError(
+            f"{path}: no line of KTH's form 'person01_boxing_d1  frames  1-95, ...'"
+        )
+    return table
+
+
+def person_folds(videos: Sequence[Video], folds: int) -> dict[str, int]:
+    """Each person (``Video.group``) -> a fold in ``range(folds)``, all of a person's videos in
+    one fold, dealt so that each class's videos spread as evenly as they can over the folds:
+    persons with the most videos first, each into the fold where its classes have the fewest
+    videos so far (then the fold with the fewest videos, then the lowest). Deterministic: the
+    same videos give the same folds on every machine."""
+    by_person: dict[str, list[int]] = {}
+    for video in videos:
+        by_person.setdefault(video.group, []).append(video.label)
+    counts = np.zeros((folds, max((v.label for v in videos), default=0) + 1), int)
+    dealt = {}
+    for person in sorted(by_person, key=lambda p: (-len(by_person[p]), p)):
+        labels = by_person[person]
+        fold = min(range(folds), key=lambda f: (counts[f, labels].sum(), counts[f].sum(), f))
+        dealt[person] = fold
+        np.add.at(counts[fold], labels, 1)
+    return dealt
 
 
 def resolve_root(

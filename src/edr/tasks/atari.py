@@ -109,8 +109,7 @@ def train_paac(
         check_same_data(state, fingerprint, checkpoint)  # the same ROM (or env) it trained on
     precision = _precision(net, network, state, env.num_envs * loss.rollout_steps, observation,
                            env.frame_stack)  # fmt: skip
-    arguments["precision"] = net.precision
-    env_kwargs = _frames_for(net, env_kwargs)
+    arguments["precision"], env_kwargs = net.precision, _frames_for(net, env_kwargs)
     clock = PhaseClock()  # where each update's time goes, into the history
     envs = _training_envs(env, loss, env_kwargs, backend, seed, clock)
     learner = Learner(net, loss, optim, env.num_envs * loss.rollout_steps, clock)

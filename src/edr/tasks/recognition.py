@@ -10,6 +10,7 @@ it); ``train_recognition``, the tasks' entry, returns the metrics only.
 from __future__ import annotations
 
 import functools
+import json
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -36,7 +37,7 @@ from edr.checks.config import (
     torch_device,
 )
 from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
-from edr.data.datasets import VideoSet, resolve_root, videos_fingerprint
+from edr.data.datasets import Video, VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
 from edr.models.divergence import divergence
@@ -57,12 +58,14 @@ from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.rebuild import instantiate_from_record
 from edr.tasks.scalars import LoggerName, open_logger
+from edr.tasks.seeds import seed_everything
 
 log = logging.getLogger(__name__)
 
 MODEL = "model.pt"  # the trained model's state_dict and the backbone's size arguments
 HISTORY = "history.json"  # one row per epoch: train loss and accuracy, test accuracy, lr
 CONFUSION = "confusion.json"  # the final confusion matrix with its class names
+FOLD_METRICS = "fold.json"  # a finished fold's metrics, in fold<k>/ (a split by person)
 
 
 class Fitted(NamedTuple):
@@ -246,13 +249,18 @@ class _Data(NamedTuple):
     def classes(self) -> list[str]:
         return self.train.classes
 
+    @property
+    def videos(self) -> tuple[Video, ...]:
+        """Every video of the two splits (a video split in time is in both)."""
+        return self.train.videos + self.test.videos
+
     def metrics(
         self, data_root: str | None, synthetic: Callable[..., Path], test_set: ClipDataset,
         shuffle_frames: bool,
     ) -> dict[str, Any]:  # fmt: skip
         """The record's ``data/`` part: what the videos were and how they were cut."""
         return {
-            **data_labels(data_root, synthetic, self.train),
+            **data_labels(data_root, synthetic, self.train, len({v.path for v in self.videos})),
             "data/synthetic": data_root is None,
             "data/root": str(self.root),
             "data/fingerprint": self.fingerprint,
@@ -451,22 +459,31 @@ def check_decoded_memory(
 
 
 def data_labels(
-    data_root: str | None, synthetic: Callable[..., Path], videos: VideoSet
+    data_root: str | None, synthetic: Callable[..., Path], videos: VideoSet, count: int
 ) -> dict[str, str]:
     """``data/source`` (what the tables group and describe by) and ``data/label`` (a row's
-    words); split in time, both say so, and the record says how (``data/split``)."""
+    words, with the ``count`` of videos); split in time or by person, both say so, and the
+    record says how (``data/split``)."""
     # a writer built from real videos says so (edr.data.from_videos); the rest generate
     source = "real" if data_root else getattr(synthetic.func, "data_source", "generated")
-    if videos.time_split is None:
-        return {"data/source": source, "data/label": source}
-    source = f"{'real clips' if source == 'real' else source}, split in time"
-    fraction = videos.time_split.train_fraction
-    return {
-        "data/source": source,
-        "data/label": source.replace(", split", f" ({len(videos)} videos), split"),
-        "data/split": f"in time, not the paper's protocol: each video's first {fraction:g} of "
-        "its frames (less a gap of one clip) trains, its last part tests",
-    }
+    clips = "real clips" if source == "real" else source
+    if videos.time_split is not None:
+        fraction = videos.time_split.train_fraction
+        return {
+            "data/source": f"{clips}, split in time",
+            "data/label": f"{clips} ({count} videos), split in time",
+            "data/split": f"in time, not the paper's protocol: each video's first {fraction:g} of "
+            "its frames (less a gap of one clip) trains, its last part tests",
+        }
+    if videos.person_fold is not None:
+        folds = videos.person_fold[1]
+        return {
+            "data/source": f"{clips}, split by person",
+            "data/label": f"{clips} ({count} videos, {len(videos.classes)} classes), split by person",
+            "data/split": f"by person, cross-validated over {folds} folds: each fold's persons "
+            "test, the others' train, every video tested once (not the paper's random 75/25)",
+        }
+    return {"data/source": source, "data/label": source}
 
 
 def _grad_norm(module: nn.Module) -> float:
@@ -484,5 +501,53 @@ def _learned(representation: Representation | None) -> dict[str, float]:
 
 @functools.wraps(fit_recognition)
 def train_recognition(**settings: Any) -> dict[str, Any]:
-    """``fit_recognition``'s metrics: the entry of the KTH and UCF-101 tasks."""
-    return fit_recognition(**settings).metrics
+    """``fit_recognition``'s metrics: the entry of the KTH and UCF-101 tasks. Videos split by
+    person into folds (``task.videos.protocol=person_folds``) are cross-validated: a network
+    trained per fold, each in ``fold<k>/``, and their test predictions pooled."""
+    videos = settings["videos"]
+    keywords = getattr(videos, "keywords", {})
+    if keywords.get("protocol") != "person_folds":
+        return fit_recognition(**settings).metrics
+    return _cross_validated(keywords.get("folds", 2), settings)
+
+
+def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
+    """Every fold of a split by person, trained and tested in ``<out_dir>/fold<k>/`` (a fold
+    that finished keeps its ``fold.json`` and is not trained again when the run resumes); the
+    metrics of their pooled test predictions (accuracy over every test item of every fold: each
+    video tested once), each fold's accuracy, and the other metrics averaged over folds."""
+    out_dir, resume = Path(settings["out_dir"]), bool(settings.get("resume"))
+    fitted, matrix, classes = [], None, None
+    for fold in range(folds):
+        fold_dir = out_dir / f"fold{fold}"
+        fold_dir.mkdir(parents=True, exist_ok=True)
+        done = fold_dir / FOLD_METRICS
+        if not done.is_file():
+            log.info("fold %d of %d", fold + 1, folds)
+            seed_everything(settings["seed"] + 1000 * fold)  # a fold trains alike, resumed or not
+            metrics = fit_recognition(**{
+                **settings, "out_dir": fold_dir, "videos": functools.partial(settings["videos"], fold=fold),
+                "resume": resume and (fold_dir / CHECKPOINT).is_file(),
+            }).metrics  # fmt: skip
+            write_json_atomic(done, metrics)
+        fitted.append(json.loads(done.read_text()))
+        confusion = json.loads((fold_dir / CONFUSION).read_text())
+        classes = confusion["classes"]
+        matrix = np.array(confusion["matrix"]) + (0 if matrix is None else matrix)
+    per_class = matrix.diagonal() / np.maximum(matrix.sum(1), 1)
+    write_json_atomic(out_dir / CONFUSION, {"classes": classes, "rows": "true class",
+                                            "matrix": matrix.tolist()})  # fmt: skip
+    save_confusion(matrix, classes, out_dir / "confusion.png")
+    numeric = {
+        k for k, v in fitted[0].items() if isinstance(v, int | float) and not isinstance(v, bool)
+    }
+    return {
+        **fitted[0],
+        **{k: float(np.mean([f[k] for f in fitted])) for k in numeric},
+        "data/test_videos": sum(f["data/test_videos"] for f in fitted),
+        "data/test_clips": sum(f["data/test_clips"] for f in fitted),
+        "data/folds": folds,
+        **{f"eval/fold{k}/accuracy": f["eval/accuracy"] for k, f in enumerate(fitted)},
+        "eval/accuracy": float(matrix.trace() / matrix.sum()),
+        **{f"eval/per_class/{c}": float(a) for c, a in zip(classes, per_class, strict=True)},
+    }

@@ -1,0 +1,146 @@
+"""The split by person (``experiment=kth_person``, ``task.videos.protocol=person_folds``): train
+and test persons disjoint in every fold, every video tested once over the folds, clips only
+within KTH's sub-sequences, and a cross-validated run whose record pools its folds; on
+generated video in KTH's layout and on the real KTH clips of ``../shared/real-video``
+(skipped where that folder is absent)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from edr.checks.config import ConfigError
+from edr.data.clips import ClipDataset
+from edr.data.datasets import (
+    DataLayoutError,
+    Video,
+    VideoSet,
+    kth,
+    person_folds,
+    read_kth_sequences,
+)
+from edr.data.synthetic import write_synthetic_kth
+from edr.run import run
+from edr.store.records import read_record
+from real_video import REAL_VIDEO
+
+ACTIONS = ["boxing", "running", "walking"]
+
+
+def _folds(root: Path, folds: int, **kwargs) -> list[tuple[list[Video], list[Video]]]:
+    return [
+        tuple(list(kth(root, train=t, protocol="person_folds", actions=ACTIONS, folds=folds,
+                       fold=f, **kwargs).videos) for t in (True, False))
+        for f in range(folds)
+    ]  # fmt: skip
+
+
+def _assert_cross_validated(splits: list[tuple[list[Video], list[Video]]]) -> None:
+    every = {v.path for train, test in splits[:1] for v in train + test}
+    tested = [v.path for _, test in splits for v in test]
+    assert sorted(tested) == sorted(every)  # each video tested once over the folds
+    for train, test in splits:
+        assert not {v.group for v in train} & {v.group for v in test}  # persons disjoint
+        assert {v.label for v in train} == set(range(len(ACTIONS)))  # every class trains
+
+
+def test_persons_are_dealt_whole_and_each_class_spread_over_the_folds() -> None:
+    videos = [Video(Path(f"{p}_{c}"), c, p) for p, c in
+              [("01", 0), ("01", 2), ("04", 0), ("04", 1), ("09", 1), ("15", 1), ("16", 0),
+               ("21", 0), ("25", 0), ("23", 1), ("07", 2), ("14", 2), ("20", 2)]]  # fmt: skip
+    dealt = person_folds(videos, 2)
+    assert dealt == person_folds(list(reversed(videos)), 2)  # the order given does not matter
+    counts = np.zeros((2, 3), int)
+    for v in videos:
+        counts[dealt[v.group], v.label] += 1
+    assert (counts.max(0) - counts.min(0) <= 1).all(), counts  # boxing 5: 3 / 2; the others 2 / 2
+
+
+def test_generated_kth_split_by_person_is_cross_validated(tmp_path) -> None:
+    root = write_synthetic_kth(tmp_path / "kth", persons=4, scenarios=1, frames=20, height=12,
+                               width=16)  # fmt: skip
+    for folds in (2, 4):
+        _assert_cross_validated(_folds(root, folds))
+    with pytest.raises(ConfigError, match=r"task\.videos\.fold=2: the folds are 0 to 1"):
+        kth(root, protocol="person_folds", folds=2, fold=2)
+    with pytest.raises(ConfigError, match=r"\['jumping'\] are not KTH actions"):
+        kth(root, protocol="person_folds", actions=["boxing", "jumping"])
+
+
+def test_the_sub_sequences_file_reads_and_refuses_a_bad_line(tmp_path) -> None:
+    good = tmp_path / "00sequences.txt"
+    good.write_text("header line\n\nperson01_boxing_d1\t\tframes\t1-95, 96-185, 186-245\n")
+    assert read_kth_sequences(good) == {"person01_boxing_d1": ((0, 95), (95, 185), (185, 245))}
+    bad = tmp_path / "bad.txt"
+    bad.write_text("person01_boxing_d1\t\tframes\t1-95, 96-x\n")
+    with pytest.raises(DataLayoutError, match=r"bad\.txt:1: expected ranges"):
+        read_kth_sequences(bad)
+    with pytest.raises(DataLayoutError, match="no such file"):
+        read_kth_sequences(tmp_path / "absent.txt")
+
+
+def test_clips_come_from_within_the_sub_sequences() -> None:
+    """Training clips never take a frame between two sub-sequences; the test gives a stack at
+    the start of each sub-sequence that holds a clip (the too-short one gives none)."""
+    segments = ((0, 30), (40, 80), (90, 95))  # frames 30-39 and 80-89: no action
+    video = Video(Path("v.avi"), 0, "01", segments)
+    videos = VideoSet((video,), ("boxing",))
+    source = lambda path: np.broadcast_to(  # noqa: E731  every frame holds its own index
+        np.arange(100, dtype=np.float32)[:, None, None, None], (100, 1, 4, 4)
+    )
+    train = ClipDataset(videos, source, frames=8, crop=4, train=True, scales=(1.0,))
+    torch.manual_seed(0)
+    seen = set()
+    for _ in range(200):
+        frames = train[0][0][:, 0].round().int()  # (8, 4, 4)
+        first, last = int(frames.min()), int(frames.max())
+        assert last - first == 7 and any(a <= first and last < b for a, b in segments[:2])
+        seen.add(first < 30)
+    assert seen == {True, False}  # both usable sub-sequences are drawn from
+    test = ClipDataset(videos, source, frames=8, crop=4, train=False)
+    assert test.items == [(0, 0), (0, 40)]
+
+
+def test_the_real_kth_clips_split_by_person(tmp_path) -> None:
+    if not (REAL_VIDEO / "kth").is_dir():
+        pytest.skip(f"no real KTH clips at {REAL_VIDEO / 'kth'} (../shared/real-video is absent)")
+    sequences = REAL_VIDEO / "splits" / "kth" / "00sequences.txt"
+    splits = _folds(REAL_VIDEO / "kth", 2, sequences=sequences)
+    _assert_cross_validated(splits)
+    train, test = splits[0]
+    assert len(train) + len(test) == 13 and all(len(v.segments) == 4 for v in train + test)
+
+
+@pytest.mark.slow  # two folds of debug=tiny training: seconds
+def test_a_cross_validated_run_pools_its_folds(compose_config, tmp_path) -> None:
+    root = write_synthetic_kth(tmp_path / "kth", persons=4, scenarios=1, frames=40, height=30,
+                               width=40)  # fmt: skip
+    out = tmp_path / "run"
+    overrides = ("experiment=kth_person", "debug=tiny", f"task.data_root={root}",
+                 "task.videos.sequences=null", f"task.cache_dir={tmp_path / 'cache'}",
+                 "task.logger=", f"out_dir={out}")  # fmt: skip
+    metrics = run(compose_config(*overrides))
+    record = read_record(out / "run.json")
+    assert record["data"]["source"] == "real clips, split by person"
+    assert record["data"]["label"] == "real clips (12 videos, 3 classes), split by person"
+    assert "cross-validated over 2 folds" in record["data"]["split"]
+    assert record["data"]["test_videos"] == 12 and metrics["eval/chance"] == pytest.approx(1 / 3)
+    matrix = np.array(json.loads((out / "confusion.json").read_text())["matrix"])
+    folds = [np.array(json.loads((out / f"fold{k}/confusion.json").read_text())["matrix"])
+             for k in (0, 1)]  # fmt: skip
+    assert (matrix == folds[0] + folds[1]).all() and matrix.sum() == 12
+    assert metrics["eval/accuracy"] == pytest.approx(matrix.trace() / 12)
+    # a run stopped after its first fold trains only the second when it resumes
+    (out / "fold1" / "fold.json").unlink()
+    (out / "run.json").write_text(
+        json.dumps({**json.loads((out / "run.json").read_text()), "status": "interrupted"})
+    )
+    before = (out / "fold0" / "fold.json").stat().st_mtime_ns
+    resumed = run(compose_config(*overrides))
+    assert resumed["eval/fold0/accuracy"] == metrics["eval/fold0/accuracy"]
+    assert (out / "fold0" / "fold.json").stat().st_mtime_ns == before
+    assert (out / "fold1" / "fold.json").is_file()
