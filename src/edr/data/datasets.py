@@ -172,8 +172,14 @@ def ucf101(
     train: bool = True,
     protocol: Literal["official", "time"] = "official",
     train_fraction: Fraction = 0.75,
+    lists: str | Path | None = None,
+    subset: bool = False,
 ) -> VideoSet:
-    """The train or test videos of official split 1, 2 or 3; ``protocol="time"``: every video of
+    """The train or test videos of official split 1, 2 or 3, as its lists name them: the lists
+    of ``lists`` (a folder holding classInd.txt, trainlist0N.txt, testlist0N.txt), else of
+    ``ucfTrainTestlist/`` in ``<root>`` or beside it, as UCF-101 ships. ``subset``: the root
+    holds part of UCF-101 (a sample of its clips): list entries whose file is absent are left
+    out (and counted in the log) instead of refused. ``protocol="time"``: every video of
     ``<root>/<ClassName>/*.avi``, split in time (:class:`TimeSplit`, ``train_fraction``)."""
     root = Path(root)
     if split not in (1, 2, 3):
@@ -184,10 +190,22 @@ def ucf101(
         return _ucf101_in_time(root, TimeSplit(train, train_fraction))
     if protocol != "official":
         raise ValueError(f"protocol must be 'official' or 'time', got {protocol!r}")
-    lists = next(
-        (d for d in (root / "ucfTrainTestlist", root.parent / "ucfTrainTestlist") if d.is_dir()),
-        None,
-    )
+    if lists is not None:
+        lists = Path(lists)
+        if not lists.is_dir():
+            raise DataLayoutError(
+                f"task.videos.lists={lists}: no such folder; expected one holding classInd.txt, "
+                "trainlist0{1,2,3}.txt and testlist0{1,2,3}.txt (UCF-101's ucfTrainTestlist/)"
+            )
+    else:
+        lists = next(
+            (
+                d
+                for d in (root / "ucfTrainTestlist", root.parent / "ucfTrainTestlist")
+                if d.is_dir()
+            ),
+            None,
+        )
     if lists is None:
         raise _missing(root, "ucfTrainTestlist/", UCF_LAYOUT)
     class_file = lists / "classInd.txt"
@@ -196,19 +214,31 @@ def ucf101(
         if not f.is_file():
             raise _missing(root, f.name, UCF_LAYOUT)
     classes = _class_index(class_file)
-    videos = []
+    videos, absent = [], 0
     for n, line in enumerate(list_file.read_text(errors="replace").splitlines(), start=1):
         if not line.strip():
             continue
         rel = line.split()[0]
+        if Path(rel).is_absolute() or ".." in Path(rel).parts:
+            raise DataLayoutError(
+                f"{list_file}:{n}: {rel!r} leaves the data root; an entry names "
+                "<ClassName>/v_<ClassName>_gXX_cYY.avi under it"
+            )
         name = rel.split("/")[0]
         if name not in classes:
             raise DataLayoutError(f"{list_file}:{n}: class {name!r} is not in {class_file.name}")
+        if subset and not (root / rel).exists():
+            absent += 1
+            continue
         path = _checked_video(root / rel, f"{list_file}:{n} lists {rel}")
         group = UCF_GROUP.search(rel)
         videos.append(Video(path, classes[name], group.group(1) if group else rel))
     if not videos:
-        raise DataLayoutError(f"{list_file} lists no videos")
+        held = f": none of its {absent} clips is under {root}" if absent else ""
+        raise DataLayoutError(f"{list_file} lists no videos{held}")
+    if absent:
+        log.info("%s: %d of its %d clips are under %s (subset=true: the others are left out)",
+                 list_file.name, len(videos), len(videos) + absent, root)  # fmt: skip
     names = tuple(sorted(classes, key=classes.get))
     return VideoSet(tuple(videos), names, (class_file, list_file))
 
