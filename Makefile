@@ -50,7 +50,7 @@ paper-tiny: setup
 # COMMITTED_SCOPE: the largest-scale records there are, each folder's command in
 # results/learning/README.md; Table 2 and Figure 3b from the tiny sweeps) and the bench records.
 paper: setup
-	$(BIN)/python -m edr.studies.tiny_sweeps results/sweeps/tiny  # skips the cells it ran before
+	$(BIN)/python -m edr.studies.tiny_sweeps results/sweeps/tiny table2 demo  # the two paper/ shows; skips cells it ran
 	$(BIN)/edr-tables
 
 # The tests run on one process per core (pytest-xdist, 4 at most: each holds torch and starts

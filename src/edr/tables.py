@@ -43,14 +43,14 @@ from edr.report.published import PUBLISHED, BadPublished, load_published
 from edr.report.recognition import ablation_edr, appendix_a_dvs, table2_ucf101, table4_kth
 from edr.report.render import write_table
 from edr.report.runs import BadRecord, load_runs, read_json, run_file
-from edr.report.speed import atari_cost_table, speed_table
+from edr.report.speed import atari_cost_table, latest_batch, speed_table
 from edr.store.atomic import write_text_atomic
 
 # paper/ as committed: the largest-scale records there are (each folder's command in
 # results/learning/README.md) and the tiny sweeps of Table 2 and Figure 3b (make paper runs them).
-LEARNING = ("table1_pong", "table1_pong_5m", "learnable_edr", "kth_demo", "kth_real",
-            "ucf101_real", "speed_classes_demo", "dvs_transfer_demo", "learnable_edr_real",
-            "event_camera_real", "event_camera_recordings")  # fmt: skip
+LEARNING = ("table1_pong", "table1_pong_5m", "table1_centipede", "learnable_edr", "kth_demo",
+            "kth_real", "kth_person", "ucf101_real", "speed_classes_demo", "dvs_transfer_demo",
+            "learnable_edr_real", "event_camera_real", "event_camera_recordings")  # fmt: skip
 COMMITTED_SCOPE = (*(Path("results/learning", name) for name in LEARNING),
                    Path("results/sweeps/tiny/table2"), Path("results/sweeps/tiny/demo"))  # fmt: skip
 PAPER = Path("paper")
@@ -99,10 +99,7 @@ def render_runs(
     """:func:`render_all` on loaded records; the bench records it cannot read go to
     ``skipped``."""
     speed = _bench_records(
-        bench_dir,
-        "speed",
-        lambda item: speed_table(item[1], published.get("speed", {}), str(item[0])),
-        skipped,
+        bench_dir, "speed", lambda item: speed_table([item], published.get("speed", {})), skipped
     )
     atari_costs = [
         item for item, _ in _bench_records(bench_dir, "atari", lambda one: atari_cost_table([one]),
@@ -124,7 +121,9 @@ def render_runs(
     for table in tables:
         written[table.name] = write_table(table, out_dir, published) if table.has_content else []
     if speed:
-        written["table2_speed"] = [write_text_atomic(out_dir / "table2_speed.md", speed[-1][1])]
+        batch = latest_batch([item for item, _ in speed])
+        text = speed_table(batch, published.get("speed", {}))
+        written["table2_speed"] = [write_text_atomic(out_dir / "table2_speed.md", text)]
     if atari_costs:
         written["atari_edr_cost"] = [
             write_text_atomic(out_dir / "atari_edr_cost.md", atari_cost_table(atari_costs))

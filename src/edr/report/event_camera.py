@@ -20,8 +20,18 @@ RECORDING = ("data.events_file", "data.events_sensor", "data.events_format",
 
 
 def _mean(cell: pd.Series, metric: str, fmt: str) -> str:
+    """The metric's mean over the cell's runs, ± their std where the runs differ (the event
+    counts of a clip are deterministic: repeats give the same number, no spread to show)."""
     mean = cell.get(f"metrics.{metric}:mean", float("nan"))
-    return mean_std(mean, cell.get(f"metrics.{metric}:std", float("nan")), fmt=fmt)
+    std = cell.get(f"metrics.{metric}:std", float("nan"))
+    return mean_std(mean, float("nan") if std == 0 else std, fmt=fmt)
+
+
+def _runs(cell: pd.Series, name: str) -> str:
+    """How many runs stand behind a row, and whether they all gave the same numbers."""
+    stds = [v for k, v in cell.items() if k.startswith(f"metrics.{name}/") and k.endswith(":std")]
+    same = cell["runs"] > 1 and all(v == 0 for v in stds if not pd.isna(v))
+    return f"{cell['runs']}, identical" if same else str(cell["runs"])
 
 
 def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
@@ -69,14 +79,14 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
                         else n
                     ),
                     "Events/s": _mean(cell, f"{n}/events_per_s", ",.0f"),
-                    "bits/s": mean_std(bits, cell[f"metrics.{n}/bits_per_s:std"], fmt=",.0f"),
+                    "bits/s": _mean(cell, f"{n}/bits_per_s", ",.0f"),
                     "bits/event": _mean(cell, f"{n}/bits_per_event", ".0f"),
                     "bits/s (file)": _mean(cell, f"{n}/file_bits_per_s", ",.0f"),
                     "bits/event (file)": _mean(cell, f"{n}/file_bits_per_event", ".1f"),
                     "Events/pixel/frame": _mean(cell, f"{n}/events_per_pixel_frame", ".4f"),
                     "Sparsity": _mean(cell, f"{n}/sparsity", ".3f"),
                     "bits vs frames": "—" if not against else f"{bits / against:.3f}",
-                    "Runs": cell["runs"],
+                    "Runs": _runs(cell, n),
                 }
             )
     hardware = lookup(published, "table3_event_camera", "rows") or []
@@ -95,8 +105,10 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         pd.DataFrame(rows).drop_duplicates(subset=[c for c in rows[0] if c != "Runs"])
         if rows
         else pd.DataFrame(rows),
-        done,
+        done.assign(scale="whole clip"),
         notes=[
+            "Runs: repeats of a clip with other seeds; 'identical': they gave the same numbers "
+            "(the event counts are deterministic), so they are one measurement, not a spread.",
             "Events: for event counts (DVS simulator, hard EDR) their sum, for graded outputs "
             "(soft EDR) the non-zero entries. bits/event: address (x, y, channel) + a 32-bit "
             "timestamp (+ a 16-bit value for graded events). Frames: every pixel, 8 bits. "

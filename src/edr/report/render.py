@@ -17,6 +17,8 @@ SCALE_WORDS = {
     "tiny": "tiny (the CI subset: seconds per run)",
     "demo": "demo (`make demo`: minutes on 2 cores)",
     "full": "full protocol",
+    "whole clip": "each clip or recording whole (the paper measures none: its Table 3 compares "
+    "camera specifications)",
 }
 SOURCE_WORDS = {
     "generated": "generated data in the data set's layout (not the real data set)",

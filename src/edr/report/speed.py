@@ -3,6 +3,7 @@ in the Atari loop. ``edr-bench`` prints them; ``edr-tables`` writes them to ``pa
 
 from __future__ import annotations
 
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,16 @@ TRAIN_FUSED = "fused kernels, forward+backward, after one Adam step"
 TRAIN_TORCH = "torch ops, forward+backward, after one Adam step"
 INFERENCE_IN_TURN = "inference (fused kernel), in turn with fused forward+backward"
 # Bench row names -> the representation names published.yaml uses.
-PUBLISHED_ROW_NAMES = {"EDR K=1 soft gray": "edr", "Brox flow": "brox"}
+# Bench rows -> the paper's speed figure of that representation (published.yaml's speed.fps)
+PUBLISHED_ROW_NAMES = {
+    "EDR K=1 soft gray": "edr",
+    "GrayDiff": "graydiff",
+    "RGBDiff": "rgbdiff",
+    "MPEG flow": "mpeg_flow",
+    "Farneback flow": "farneback",
+    "TV-L1 flow": "tvl1",
+    "Brox flow": "brox",
+}
 # Config names (representation/) -> the bench row that times them (name, implementation).
 BENCH_ROWS = {
     "edr": ("EDR K=1 soft gray", "fused numba kernel"),
@@ -48,9 +58,8 @@ def _ratio(a: float | None, b: float | None, fmt: str) -> str:
     return format(a / b, fmt) if a and b else "n/a"
 
 
-def ratio_lines(rows: list[dict[str, Any]], published: dict[str, Any]) -> list[str]:
-    """A Markdown table of EDR's speed over GrayDiff's and the flows', from one bench record,
-    beside the paper's ratios (``published``: the published numbers' ``speed`` section)."""
+def _run_ratios(rows: list[dict[str, Any]]) -> list[str]:
+    """One bench run's ratios, in :data:`RATIOS`' order."""
     edr = bench_fps(rows, "EDR K=1 soft gray", "fused numba kernel")
     edr_k3 = bench_fps(rows, "EDR K=3 soft gray")
     edr_stream = bench_fps(rows, "EDR K=1 soft gray, streaming")
@@ -84,65 +93,118 @@ def ratio_lines(rows: list[dict[str, Any]], published: dict[str, Any]) -> list[s
         bench_fps(rows, n, "fused kernel, into out=") for n in (long_edr, long_gray)
     )
     return [
-        "| Ratio | Ours | Paper |",
-        "|---|---:|---:|",
-        f"| EDR K=1 / GrayDiff | {_ratio(edr, gray_diff, '.2f')} | {cite(published.get('edr_over_graydiff'))} |",
-        f"| EDR K=1 streaming (per frame) / GrayDiff (per clip) | {_ratio(edr_stream, gray_diff, '.2f')} | — |",
-        f"| EDR K=3 / GrayDiff | {_ratio(edr_k3, gray_diff, '.2f')} | — |",
-        f"| EDR K=1 learnable, forward+backward (fused) / inference, timed in turn | {_ratio(train_fused, inference_in_turn, '.3f')} | — |",
-        f"| EDR K=1 learnable, forward+backward: fused / torch ops | {_ratio(train_fused, train_torch, '.1f')}x | — |",
-        f"| EDR K=1 / Brox | {_ratio(edr, brox, ',.0f')}x | {cite(published.get('edr_over_optical_flow'))} |",
-        f"| EDR K=1 / TV-L1 | {_ratio(edr, tvl1, ',.0f')}x | — |",
-        f"| EDR K=1 / Farneback | {_ratio(edr, farneback, ',.0f')}x | — |",
-        f"| EDR K=1, busy neighbour: all threads / 1 thread | {_ratio(busy_all, busy_one, '.2f')} | — |",
-        f"| EDR K=1, long clip: plain call / glibc keeping freed memory | {_ratio(plain, kept, '.2f')} | — |",
-        f"| EDR K=1 / GrayDiff, long clip, both into out= | {_ratio(edr_out, gray_out, '.2f')} | — |",
+        _ratio(edr, gray_diff, ".2f"),
+        _ratio(edr_stream, gray_diff, ".2f"),
+        _ratio(edr_k3, gray_diff, ".2f"),
+        _ratio(train_fused, inference_in_turn, ".3f"),
+        _ratio(train_fused, train_torch, ".1f") + "x",
+        _ratio(edr, brox, ",.0f") + "x",
+        _ratio(edr, tvl1, ",.0f") + "x",
+        _ratio(edr, farneback, ",.0f") + "x",
+        _ratio(busy_all, busy_one, ".2f"),
+        _ratio(plain, kept, ".2f"),
+        _ratio(edr_out, gray_out, ".2f"),
     ]
 
 
-def speed_table(record: dict[str, Any], published: dict[str, Any], source: str = "") -> str:
-    """Markdown for the speed column of Table 2 from one ``edr-bench`` record, beside the
-    paper's figures (``published``: the published numbers' ``speed`` section)."""
+# The ratio table's rows: what each compares, and the published.yaml speed key of the paper's
+RATIOS = (
+    ("EDR K=1 / GrayDiff", "edr_over_graydiff"),
+    ("EDR K=1 streaming (per frame) / GrayDiff (per clip)", None),
+    ("EDR K=3 / GrayDiff", None),
+    ("EDR K=1 learnable, forward+backward (fused) / inference, timed in turn", None),
+    ("EDR K=1 learnable, forward+backward: fused / torch ops", None),
+    ("EDR K=1 / Brox", "edr_over_optical_flow"),
+    ("EDR K=1 / TV-L1", None),
+    ("EDR K=1 / Farneback", None),
+    ("EDR K=1, busy neighbour: all threads / 1 thread", None),
+    ("EDR K=1, long clip: plain call / glibc keeping freed memory", None),
+    ("EDR K=1 / GrayDiff, long clip, both into out=", None),
+)
+
+
+def ratio_lines(runs: list[list[dict[str, Any]]], published: dict[str, Any]) -> list[str]:
+    """A Markdown table of EDR's speed over GrayDiff's and the flows', each bench run's (the
+    rows of every run given, one after another), beside the paper's ratios (``published``: the
+    published numbers' ``speed`` section)."""
+    per_run = [_run_ratios(rows) for rows in runs]
+    lines = ["| Ratio | Ours | Paper |", "|---|---:|---:|"]
+    for k, (name, paper) in enumerate(RATIOS):
+        ours = " / ".join(ratios[k] for ratios in per_run)
+        lines.append(f"| {name} | {ours} | {cite(published.get(paper)) if paper else '—'} |")
+    return lines
+
+
+def latest_batch(records: list[tuple[Path, dict[str, Any]]]) -> list[tuple[Path, dict[str, Any]]]:
+    """The newest bench records of one code and machine (``records`` oldest first): the runs
+    made in a row whose spread the speed table shows."""
+    if not records:
+        return []
+    last = records[-1][1]
+
+    def same(record: dict[str, Any]) -> bool:
+        return record["git"] == last["git"] and record["machine"]["cpu"] == last["machine"]["cpu"]
+
+    return [item for item in records if same(item[1])]
+
+
+def _spread(values: list[float], fmt: str) -> str:
+    """One figure of several runs: its median, and the range where there are more than one."""
+    middle = format(statistics.median(values), fmt)
+    if len(values) == 1:
+        return middle
+    return f"{middle} ({format(min(values), fmt)} - {format(max(values), fmt)})"
+
+
+def speed_table(records: list[tuple[Path, dict[str, Any]]], published: dict[str, Any]) -> str:
+    """Markdown for the speed column of Table 2 from the ``edr-bench`` records of one batch
+    (:func:`latest_batch`: one code and machine): each row's median over the runs and their
+    range, beside the paper's figures (``published``: the published numbers' ``speed``
+    section); the ratios of every run."""
+    record = records[-1][1]
     m = record["machine"]
-    rows = record["rows"]
     dirty = uncommitted([record["git"]])
+    runs = len(records)
     lines = [
         "# Table 2, speed: representations per second, ours beside the paper's",
         "",
         f"- **Ours**: `edr-bench` on {m['cpu']} ({m['cpu_count']} cores), "
         f"{m['torch_threads']} torch / {m.get('numba_threads', '?')} numba threads "
         f"({m.get('numba_threading_layer', 'omp')}), "
-        f"allocator: {m.get('allocator', '?')}, GPU: {m.get('gpu') or 'none'}; {record['measured_at']}, git `{record['git']}`"
-        + (f", record `{source}`" if source else "")
+        f"allocator: {m.get('allocator', '?')}, GPU: {m.get('gpu') or 'none'}; git `{record['git']}`; "
+        f"{runs} run(s) in a row ({', '.join(r['measured_at'] for _, r in records)}), records "
+        + ", ".join(f"`{path}`" for path, _ in records)
         + ".",
         *([f"- **Uncommitted code**: {dirty}."] if dirty else []),
         f"- **Data**: {record['clip']}; {record['frames_per_call']} frames per call "
-        f"(slow flows: fewer, see Frames); median of {record['repeats']} timed calls after "
-        f"{record.get('warmup', 1)} warm-up call(s). "
+        f"(slow flows: fewer, see Frames); each run's median of {record['repeats']} timed calls "
+        f"after {record.get('warmup', 1)} warm-up call(s). "
         "Synthetic unless a video file is named: not a UCF-101 clip.",
-        "- **Published**: the paper's figures, on its own machine and code; "
-        "'—' where we have no published figure to cite.",
+        f"- **Ours (fps)**: the median over the {runs} run(s), with their range (min - max): "
+        "this machine's spread from run to run.",
+        "- **Published**: the paper's figure for that representation, on its own machine and code "
+        "(GPU; MPEG flow's and TV-L1's cited by the paper from other work); '—' where the paper "
+        "gives none.",
         "- fps counts input frames consumed per second (every env of a batch counted).",
         "- Busy neighbour rows: timed while the bench keeps one other process spinning on a core.",
         "",
         "| Representation | Implementation | Frame size | Frames | Ours (fps) | Published (fps) |",
         "|---|---|---|---:|---:|---:|",
     ]
-    for r in rows:
-        paper = (
-            lookup(published, "fps", PUBLISHED_ROW_NAMES.get(r["name"], ""))
-            if "torch" not in r["implementation"]
-            else None
-        )
+    for r in record["rows"]:
+        paper = lookup(published, "fps", PUBLISHED_ROW_NAMES.get(r["name"], ""))
+        fps = [bench_fps(other["rows"], r["name"], r["implementation"]) for _, other in records]
+        ours = _spread([f for f in fps if f is not None], ",.1f")
         lines.append(
             f"| {r['name']} | {r['implementation']} | {r['frame_size']} | {r['frames']} | "
-            f"{r['fps']:,.1f} | {f'{paper:,.1f}' if paper else '—'} |"
+            f"{ours} | {f'{paper:,.1f}' if paper else '—'} |"
         )
     lines += [
         "",
-        "Ratios, ours from this one run (GrayDiff = its fastest implementation here):",
+        f"Ratios, ours from each of the {runs} run(s) in turn (GrayDiff = its fastest "
+        "implementation here):",
         "",
-        *ratio_lines(rows, published),
+        *ratio_lines([r["rows"] for _, r in records], published),
         "",
     ]
     return "\n".join(lines)

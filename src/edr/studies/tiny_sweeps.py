@@ -1,8 +1,8 @@
 """The paper's sweeps at tiny scale: the grid CI runs for every table (seeds 0 and 1 where a
 table averages over seeds; fewer cells where the full grid would take minutes), all at
-``debug=tiny`` on generated data. ``python -m edr.studies.tiny_sweeps DIR`` runs them all into ``DIR``.
-
-    python -m edr.studies.tiny_sweeps results/sweeps/tiny && edr-tables   # what paper/ holds now
+``debug=tiny`` on generated data. ``python -m edr.studies.tiny_sweeps DIR`` runs them all into
+``DIR``; ``python -m edr.studies.tiny_sweeps DIR table2 demo`` only those named (the two whose
+records ``paper/`` shows: ``edr.tables.COMMITTED_SCOPE``; ``make paper`` runs just these).
 """
 
 from __future__ import annotations
@@ -30,10 +30,20 @@ TINY_SWEEPS = {
 }  # fmt: skip
 
 
-def run_tiny_sweeps(out_dir: Path, env: dict[str, str] | None = None) -> None:
-    """Run every tiny sweep with ``edr-run -m`` into ``out_dir/<name>``; raises if one fails."""
+def run_tiny_sweeps(
+    out_dir: Path, env: dict[str, str] | None = None, names: list[str] | None = None
+) -> None:
+    """Run every tiny sweep (or those ``names`` names) with ``edr-run -m`` into
+    ``out_dir/<name>``; raises if one fails, or if a name is not a tiny sweep."""
+    unknown = sorted(set(names or ()) - set(TINY_SWEEPS))
+    if unknown:
+        raise SystemExit(
+            f"no tiny sweep named {', '.join(unknown)}: they are {', '.join(TINY_SWEEPS)}"
+        )
     edr_run = str(Path(sys.executable).parent / "edr-run")
     for name, overrides in TINY_SWEEPS.items():
+        if names and name not in names:
+            continue
         print(f"tiny sweep {name}: edr-run -m debug=tiny {' '.join(overrides)}", flush=True)
         subprocess.run(
             [edr_run, "-m", "debug=tiny", *overrides, f"hydra.sweep.dir={out_dir / name}"],
@@ -42,4 +52,7 @@ def run_tiny_sweeps(out_dir: Path, env: dict[str, str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    run_tiny_sweeps(Path(sys.argv[1]) if len(sys.argv) > 1 else Path("results/sweeps/tiny"))
+    run_tiny_sweeps(
+        Path(sys.argv[1]) if len(sys.argv) > 1 else Path("results/sweeps/tiny"),
+        names=sys.argv[2:],
+    )
