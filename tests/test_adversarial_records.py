@@ -294,6 +294,14 @@ def test_the_committed_scope_renders_into_paper_and_nothing_else(tmp_path, monke
     [
         (["--runs", "{tmp}/runs"], "--runs needs --out"),
         (["--runs", "{tmp}/empty", "--out", "{tmp}/out"], "no records found under {tmp}/empty"),
+        # issue 57: --out paper with --runs, a folder that is not there, one empty among good ones
+        (["--runs", "{tmp}/runs", "--out", "paper"], "--out paper: paper/ holds the committed"),
+        (["--runs", "{tmp}/runs", "--out", "{tmp}/paper/sub"], "paper/ holds the committed"),
+        (["--runs", "{tmp}/nowhere", "--out", "{tmp}/out"], "--runs {tmp}/nowhere: no such folder"),
+        (
+            ["--runs", "{tmp}/runs", "--runs", "{tmp}/empty", "--out", "{tmp}/out"],
+            "no records found under {tmp}/empty",
+        ),
     ],
 )
 def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, monkeypatch, capsys):
@@ -306,6 +314,32 @@ def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, monkeypatc
     assert exit_.value.code == 2 and message.format(tmp=tmp_path) in error
     assert error.count("\n") == 1 and not (tmp_path / "out").exists()
     assert not (tmp_path / "paper").exists()
+
+
+def test_a_run_found_in_two_folders_says_which_record_the_tables_take(tmp_path) -> None:
+    """issue 57: `edr-tables --runs results` after `make demo` took the user's copy of a
+    committed run without a word."""
+    _write(tmp_path / "runs" / "committed" / "one", _record(fingerprint="same"))
+    _write(tmp_path / "runs" / "mine" / "one", _record(fingerprint="same"))
+    printed = _render(tmp_path / "runs", tmp_path / "out")
+    (line,) = [line for line in printed.splitlines() if "has 2 records" in line]
+    assert "the tables take the newest" in line and "left out:" in line
+
+
+def test_an_out_folder_that_cannot_be_written_is_one_line(tmp_path, monkeypatch, capsys) -> None:
+    _write(tmp_path / "runs" / "good", _record())
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    if os.access(locked / "x", os.W_OK) or os.geteuid() == 0:  # root writes anyway: make a file
+        locked.chmod(0o700)
+        locked.rmdir()
+        locked.write_text("a file, not a folder")
+    with pytest.raises(SystemExit) as exit_:
+        tables.main(["--runs", str(tmp_path / "runs"), "--out", str(locked)])
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and error.count("\n") == 1
+    assert f"cannot write the tables into {locked}" in error
 
 
 def test_a_record_lacking_the_fields_a_table_groups_by_is_listed_not_a_nan_row(tmp_path) -> None:

@@ -42,7 +42,7 @@ from edr.report.flow_accuracy import flow_accuracy_table
 from edr.report.published import PUBLISHED, BadPublished, load_published
 from edr.report.recognition import ablation_edr, appendix_a_dvs, table2_ucf101, table4_kth
 from edr.report.render import write_table
-from edr.report.runs import BadRecord, load_runs, read_json, run_file
+from edr.report.runs import BadRecord, displaced, load_runs, read_json, run_file
 from edr.report.speed import atari_cost_table, latest_batch, speed_table
 from edr.store.atomic import write_text_atomic
 
@@ -191,7 +191,14 @@ def main(argv: list[str] | None = None) -> None:
         print(f"edr-tables: {error}", file=sys.stderr)
         raise SystemExit(2) from None
     skipped: list[str] = []
-    written = render_runs(runs, args.bench, out_dir, published, skipped)
+    try:
+        written = render_runs(runs, args.bench, out_dir, published, skipped)
+    except OSError as error:  # a read-only or full --out: nothing half written is left (atomic)
+        print(f"edr-tables: cannot write the tables into {out_dir}: {error.strerror or error} "
+              f"({error.filename or out_dir})", file=sys.stderr)  # fmt: skip
+        raise SystemExit(2) from None
+    for line in displaced(runs):
+        print(line)
     for name, paths in written.items():
         print(f"{name:30s} " + (", ".join(map(str, paths)) if paths else "no records: skipped"))
     for row in runs[runs["status"] == "unreadable"].itertuples():
@@ -211,6 +218,16 @@ def _scope(
             "--runs needs --out: paper/ holds the committed scope only (edr-tables with no "
             "--runs renders it)"
         )
+    if roots and out is not None and _inside(out, PAPER):
+        raise Refused(
+            f"--out {out}: paper/ holds the committed scope only, rendered by edr-tables with no "
+            "--runs; write your runs' tables into another folder"
+        )
+    for root in roots or ():
+        if not root.is_dir():
+            raise Refused(f"--runs {root}: no such folder")
+        if next(root.rglob("run.json"), None) is None:
+            raise Refused(f"no records found under {root} (--runs: it holds no run.json)")
     published = load_published(published_path)
     if not roots:
         present = [p for p in COMMITTED_SCOPE if p.is_dir()]
@@ -226,6 +243,12 @@ def _scope(
     if runs.empty and not any(bench_dir.glob("*.json")):  # bench records alone render too
         raise Refused(f"no records found under {', '.join(map(str, [*scope, bench_dir]))}")
     return runs, out or PAPER, published
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies in it, however either is spelled."""
+    path, folder = path.resolve(), folder.resolve()
+    return path == folder or folder in path.parents
 
 
 if __name__ == "__main__":

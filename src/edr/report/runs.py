@@ -238,6 +238,24 @@ def finished(
     return done.drop_duplicates("fingerprint", keep="last")
 
 
+def displaced(runs: pd.DataFrame) -> list[str]:
+    """One line per run found in several records (one fingerprint, several folders: a sweep's
+    copy and a committed one, say): which record the tables take (the newest, as
+    :func:`finished` does) and which they leave out."""
+    if runs.empty:
+        return []
+    done = runs[runs["status"] == "finished"]
+    lines = []
+    for fingerprint, group in done.groupby("fingerprint", sort=False):
+        if len(group) > 1:
+            kept, *left = reversed(group["record"].tolist())
+            lines.append(
+                f"run {str(fingerprint)[:12]} has {len(group)} records: the tables take the "
+                f"newest, {kept}; left out: {', '.join(left)}"
+            )
+    return lines
+
+
 def placeable(done: pd.DataFrame, labels: Sequence[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(the runs that have every one of a table's ``labels``, the others as ``not placed``
     rows naming what they lack): a record from before a field existed gets no ``nan`` row."""
