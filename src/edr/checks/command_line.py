@@ -67,6 +67,21 @@ def _missing(cfg: DictConfig, dotted: str, added: bool) -> tuple[str, list[str],
     return f"{owner} takes no argument {name}", keys, list(parameters)
 
 
+def _refuse_twice_given(overrides: Sequence[Override]) -> None:
+    """One line for a key or group given twice (``task=kth task=atari``): which one would win
+    is not what the command says."""
+    seen: dict[str, str] = {}
+    for override in overrides:
+        key = override.key_or_group
+        if key in seen and not override.is_delete():
+            raise ConfigError(
+                f"{key} is given twice ({seen[key]} and {override.input_line}): give it once"
+                + (" (a sweep over both: " + f"{key}={seen[key].split('=', 1)[1]},"
+                   + f"{override.input_line.split('=', 1)[1]} with -m)" if "=" in seen[key] else "")
+            )  # fmt: skip
+        seen[key] = override.input_line
+
+
 def check_command_line(
     argv: Sequence[str], conf_dir: str | Path, check: Callable[[DictConfig], None]
 ) -> None:
@@ -82,6 +97,7 @@ def check_command_line(
     except HydraException as error:
         raise ConfigError(" ".join(str(error).split())) from None
     ours = [o for o in parsed if not o.key_or_group.startswith("hydra")]
+    _refuse_twice_given(ours)
     groups = sorted(p.name for p in Path(conf_dir).iterdir() if p.is_dir())
     chosen = [o for o in ours if o.key_or_group in groups]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):

@@ -107,10 +107,19 @@ def _path_limits() -> tuple[int, int]:
         return 255, 4096
 
 
+def _file_in_the_way(path: Any) -> str | None:
+    """Where ``path`` should be a folder: the file that stands in its place (itself or one of
+    the folders above it), if any."""
+    for place in (Path(str(path)).expanduser(), *Path(str(path)).expanduser().parents):
+        if place.exists():
+            return None if place.is_dir() else f"a folder ({place} is a file)"
+    return None
+
+
 def _data_root_problem(path: Any) -> str | None:
     if path == "":
         return "a folder (an empty path is not a data set; null generates one)"
-    return path_problem(path)
+    return path_problem(path) or _file_in_the_way(path)
 
 
 def _existing_dir_problem(path: Any) -> str | None:
@@ -126,7 +135,9 @@ def _existing_file_problem(path: Any) -> str | None:
 
 
 # A folder a run writes into, with room for a subfolder and a file in it (a cache's entries).
-OutputDir = Annotated[str, Check(lambda path: path_problem(path, below=2))]
+OutputDir = Annotated[
+    str, Check(lambda path: path_problem(path, below=2) or _file_in_the_way(path))
+]
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
 ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
 ExistingFile = Annotated[str, Check(_existing_file_problem)]  # a file a task reads

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import shutil
 from pathlib import Path
 
 import cv2
@@ -95,5 +97,20 @@ def write_video(path: str | Path, frames: np.ndarray | torch.Tensor, fps: float 
             )
     finally:
         writer.release()
+    _check_written(tmp, path)
     tmp.replace(path)
     return path
+
+
+def _check_written(tmp: Path, path: Path) -> None:
+    """OpenCV's writer fails without a word (a full disk leaves an empty or no file): refuse
+    such a file, with the disk's free space, before it takes ``path``'s name."""
+    size = tmp.stat().st_size if tmp.is_file() else 0
+    if size == 0:
+        tmp.unlink(missing_ok=True)
+        free = shutil.disk_usage(path.parent).free
+        raise OSError(
+            errno.ENOSPC if free < 2**20 else errno.EIO,
+            f"writing the video {path} left an empty file (the disk holding it has "
+            f"{free / 2**20:.1f} MiB free: full?); nothing was kept",
+        )

@@ -509,6 +509,11 @@ def evaluate_checkpoint(
     """
     run_dir = Path(run_dir)
     record = read_record(run_dir / "run.json")
+    if record.get("task") not in ("atari", None):
+        raise UnreadableRecord(
+            f"{run_dir / 'run.json'} is a {record['task']} run: edr-eval scores Atari runs (a "
+            "recognition run's test accuracy is in its run.json, its model in model.pt)"
+        )
     source = next((run_dir / n for n in (CHECKPOINT, NETWORK) if (run_dir / n).is_file()), None)
     if source is None:
         raise FileNotFoundError(
