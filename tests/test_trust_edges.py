@@ -4,6 +4,15 @@ reproducer that failed before its fix."""
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
 import cv2
 import pytest
 
@@ -55,11 +64,64 @@ def test_a_file_where_a_folder_belongs_is_refused_in_one_line(cli, tmp_path) -> 
 
 
 def test_edr_eval_on_a_recognition_run_says_what_it_scores(tmp_path) -> None:
-    import json
-
     from edr.store.records import UnreadableRecord
     from edr.tasks.atari import evaluate_checkpoint
 
     (tmp_path / "run.json").write_text(json.dumps({"task": "kth", "status": "finished"}))
     with pytest.raises(UnreadableRecord, match="is a kth run: edr-eval scores Atari runs"):
         evaluate_checkpoint(tmp_path)
+
+
+def test_a_run_stopped_before_its_first_checkpoint_says_it_starts_over(
+    compose_config, tmp_path, monkeypatch, caplog
+) -> None:
+    """issue 57: a full-size KTH run checkpoints at its first epoch's end, yet a Ctrl-C within
+    that epoch said the run would continue from its checkpoint."""
+    from edr.run import run
+    from edr.tasks import recognition
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(recognition, "_train_epoch", stopped)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        run(compose_config("task=kth", "debug=tiny", f"task.cache_dir={tmp_path / 'cache'}",
+                           "task.logger=", f"out_dir={out}"))  # fmt: skip
+    assert "stopped before its first checkpoint: running the same command again starts it over" in (
+        caplog.text
+    )
+
+
+@pytest.mark.slow  # a parallel env's workers start in seconds
+@pytest.mark.parametrize("sent", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_to_the_process_group_of_a_parallel_env_run_is_an_interruption(
+    sent, tmp_path
+) -> None:
+    """issue 57: Ctrl-C (or a scheduler's SIGTERM) reaches every process of the group; the
+    ParallelEnv's workers died of it and the record said failed, with torchrl's traceback."""
+    out = tmp_path / "run"
+    argv = ["task=atari", "task.env.preset=none", "task.env.env_id=EdrCatch-v0",
+            "task.env.env_module=catch_game", "task.env.backend=parallel", "task.env.num_envs=2",
+            "task.env_steps=10000000", "task.optim.lr_decay_env_steps=10000000",
+            "task.checkpoint_every=5", "task.logger=", "representation.color=gray", "threads=1",
+            f"hydra.run.dir={out}"]  # fmt: skip
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(Path(__file__).parent)}
+    process = subprocess.Popen(
+        [str(Path(sys.executable).parent / "edr-run"), *argv], cwd=tmp_path, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )  # fmt: skip
+    output: list[str] = []
+    threading.Thread(target=lambda: output.extend(iter(process.stdout.readline, "")),
+                     daemon=True).start()  # fmt: skip
+    deadline = time.monotonic() + 300
+    while not (out / "checkpoint.pt").is_file():  # training under way, a checkpoint written
+        assert process.poll() is None and time.monotonic() < deadline, "".join(output)[-3000:]
+        time.sleep(0.2)
+    os.killpg(process.pid, sent)  # the whole group, as a terminal's Ctrl-C
+    process.wait(timeout=120)
+    text = "".join(output)
+    assert process.returncode in (130, 143), text[-3000:]
+    assert "process failed" not in text and "Traceback" not in text, text[-3000:]
+    record = json.loads((out / "run.json").read_text())
+    assert record["error"] == "interrupted" and record["resumes_from"]["env_steps"] > 0

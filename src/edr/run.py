@@ -176,6 +176,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         )
         if interrupted:  # what the next attempt continues from (None: it starts over)
             record["resumes_from"] = progress(out_dir)
+            _say_where_it_resumes(out_dir, record["resumes_from"])
         unwritten = write_last_record(out_dir, record)
         if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
             log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
@@ -292,6 +293,17 @@ def hydra_app(cfg: DictConfig) -> None:
         log.error("failed: %s: %s", type(error).__name__, " ".join(str(error).split()))
 
 
+def _say_where_it_resumes(out_dir: Path, checkpoint: dict[str, Any] | None) -> None:
+    """One line on what running the command again does for this stopped run."""
+    if checkpoint is None:
+        log.warning("%s: stopped before its first checkpoint: running the same command again "
+                    "starts it over", out_dir)  # fmt: skip
+    else:
+        counters = ", ".join(f"{k} {v}" for k, v in checkpoint.items() if k != "checkpoint")
+        log.warning("%s: running the same command again continues from %s (%s)", out_dir,
+                    checkpoint["checkpoint"], counters or "its saved state")  # fmt: skip
+
+
 def cli() -> None:
     """The ``edr-run`` command: Hydra's app, with Ctrl-C or SIGTERM ending in one line instead
     of a trace (exit status 130 or 143, as the shell reports those signals), on the first one
@@ -312,8 +324,9 @@ def cli() -> None:
     except KeyboardInterrupt as error:
         SweepSummary.interrupted()  # a sweep's line comes, whatever stopped it
         print(
-            "\ninterrupted: run the same command again to resume "
-            "(finished runs are skipped, interrupted ones continue from their checkpoints)",
+            "\ninterrupted: run the same command again to resume (finished runs are skipped, "
+            "interrupted ones continue from their last checkpoint; one stopped before its first "
+            "starts over)",
             file=sys.stderr,
         )
         raise SystemExit(143 if isinstance(error, interrupts.Terminated) else 130) from None

@@ -49,3 +49,11 @@ def raise_if_stopping() -> None:
     had it dropped somewhere (a callback, a ``__del__``)."""
     if _State.first is not None:
         raise _interrupt(_State.first)
+
+
+def ignore_stop_signals() -> None:
+    """Ignore SIGINT and SIGTERM in this process: for a worker process, which its parent stops
+    itself. A Ctrl-C reaches the whole process group (and a scheduler's SIGTERM every process of
+    the job); a worker that died of it would turn the parent's orderly stop into a failure."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)

@@ -26,6 +26,7 @@ import difflib
 import functools
 import hashlib
 import importlib
+import multiprocessing
 import os
 import re
 from typing import Annotated, Any, Literal, get_args
@@ -49,6 +50,7 @@ from torchrl.envs import (
     TransformedEnv,
 )
 
+from edr.checks import interrupts
 from edr.checks.config import Check
 from edr.representations import EDR
 from edr.rl.transform import ObservationFrame
@@ -133,7 +135,12 @@ def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
 def _torchrl_gym(
     game: str, preset: Preset, train: bool, life_loss: bool, module: str | None
 ) -> GymWrapper:
-    """Runs in the worker process of a ParallelEnv: the module registers the env there too."""
+    """Runs in the worker process of a ParallelEnv: the module registers the env there too, and
+    the worker ignores Ctrl-C and SIGTERM, which reach it with its parent's process group: the
+    parent stops (and checkpoints), then closes its workers. In the main process (a serial env,
+    torchrl's look at the specs) nothing about signals changes."""
+    if multiprocessing.parent_process() is not None:
+        interrupts.ignore_stop_signals()
     if preset == "none":
         return GymWrapper(gym_image_env(game, module), from_pixels=False)
     return GymWrapper(gym_atari(game, preset, train, life_loss))

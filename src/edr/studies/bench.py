@@ -268,7 +268,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per row (median)")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (default: all)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed calls before timing")
-    parser.add_argument("--quick", action="store_true", help="2 repeats, for a smoke test")
+    parser.add_argument(
+        "--quick", action="store_true",
+        help="a smoke test of seconds: 2 repeats, 1 warm-up call, small clips (what you set "
+        "yourself stays)",
+    )  # fmt: skip
     parser.add_argument(
         "--atari", type=int, metavar="ENVS", default=0,
         help="instead: env steps/s of ENVS parallel Atari envs with and without the EDR transform",
@@ -312,9 +316,32 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+# --quick's sizes, where the command line does not set them: seconds a row, every row timed
+QUICK = {"repeats": 2, "warmup": 1, "frames": 4, "flow_frames": 2, "long_frames": 9,
+         "height": 48, "width": 64, "atari_batch": 2}  # fmt: skip
+AT_LEAST = {"repeats": 1, "warmup": 0, "frames": 2, "flow_frames": 2, "long_frames": 2,
+            "height": 16, "width": 16, "atari_batch": 1, "steps": 1, "train_frames": 0}  # fmt: skip
+
+
+def _settings(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """The options, --quick's sizes filled in where not given; one line (exit 2) for a count
+    below what can be timed (``--repeats 0``: no call to take a median of)."""
+    args = parser.parse_args(argv)
+    if args.quick:
+        for key, value in QUICK.items():
+            if getattr(args, key) == parser.get_default(key):  # not set on the command line
+                setattr(args, key, value)
+    for key, low in AT_LEAST.items():
+        if getattr(args, key) < low:
+            parser.exit(2, f"edr-bench: --{key.replace('_', '-')}={getattr(args, key)}: "
+                           f"expected a number >= {low}\n")  # fmt: skip
+    return args
+
+
 def main(argv: list[str] | None = None) -> None:
-    args = _parser().parse_args(argv)
-    repeats = 2 if args.quick else args.repeats
+    parser = _parser()
+    args = _settings(parser, argv)
+    repeats = args.repeats
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.atari:
@@ -324,9 +351,13 @@ def main(argv: list[str] | None = None) -> None:
 
         run_atari_bench(args, repeats)
     elif args.events:
+        from edr.data.events.checks import RecordingError
         from edr.studies.bench_events import run_events_bench
 
-        run_events_bench(args, repeats)
+        try:
+            run_events_bench(args, repeats)
+        except RecordingError as error:  # a folder, a missing or unreadable file: one line
+            parser.exit(2, f"edr-bench: {error}\n")
     else:
         run_speed_bench(args, repeats)
 
