@@ -125,3 +125,13 @@ def test_a_signal_to_the_process_group_of_a_parallel_env_run_is_an_interruption(
     assert "process failed" not in text and "Traceback" not in text, text[-3000:]
     record = json.loads((out / "run.json").read_text())
     assert record["error"] == "interrupted" and record["resumes_from"]["env_steps"] > 0
+
+
+def test_a_clip_whose_representation_cannot_fit_is_refused_before_it_is_made(cli, tmp_path):
+    """issue 57: task.height=100000 passed the memory check (the uint8 clip alone fits), then
+    held 3.4 GB in a kernel call that no SIGTERM could stop."""
+    result = cli("edr-run", "task=event_camera", "task.height=100000", cwd=tmp_path)
+    assert result.returncode != 0 and "Traceback" not in result.stderr
+    assert "its float32 copy and a 2-channel float32 representation of it would take" in (
+        result.stdout + result.stderr
+    )

@@ -12,7 +12,7 @@ import torch
 
 from edr.checks.config import PositiveInt, Range, check_memory
 from edr.data.fingerprint import files_fingerprint
-from edr.data.video import read_video, write_video
+from edr.data.video import frame_count, read_video, write_video
 from edr.store.atomic import publish_dir
 
 FrameSide = Annotated[int, Range(16)]  # a frame's side: the generated scene draws at least 16
@@ -59,14 +59,22 @@ def synthetic_scene(
 
 
 def video_or_scene(
-    video: str | None, frames: int, height: int, width: int, seed: int
+    video: str | None, frames: int, height: int, width: int, seed: int, out_channels: int = 0
 ) -> tuple[torch.Tensor, dict[str, Any]]:
     """(clip (T, 3, H, W) uint8, its ``data/*`` entries for the run record): ``video`` read and
-    resized to ``width`` x ``height``, or, without one, the generated scene drawn from ``seed``."""
+    resized to ``width`` x ``height``, or, without one, the generated scene drawn from ``seed``.
+    Refused first if the clip, and with ``out_channels`` (the widest representation the caller
+    computes of it whole) its float32 copy and that output too, cannot fit in memory: a clip
+    too large for a representation would otherwise decode, then fail or swap in an uninterruptible
+    kernel call."""
+    per_pixel = 3 + (4 * 3 + 4 * out_channels if out_channels else 0)  # bytes a pixel-frame
+    held = min(frames, frame_count(video) or 1) if video else frames  # a video may hold fewer
     check_memory(
         f"task.frames={frames}, task.height={height}, task.width={width}",
-        f"{'a frame' if video else f'a clip of {frames} frames'} at {width}x{height} (RGB, uint8)",
-        (1 if video else frames) * 3 * height * width,  # a video may hold fewer than ``frames``
+        f"a clip of {held} frames at {width}x{height} (RGB, uint8)"
+        + (f", its float32 copy and a {out_channels}-channel float32 representation of it"
+           if out_channels else ""),
+        held * height * width * per_pixel,
     )  # fmt: skip
     if video:
         clip = read_video(video, max_frames=frames, size=(width, height))

@@ -36,6 +36,15 @@ def check_video_file(path: str | Path) -> Path:
     return path
 
 
+def frame_count(path: str | Path) -> int:
+    """The frames a video's container says it holds (0 where it does not say): cheap, no decoding."""
+    capture = cv2.VideoCapture(str(path))
+    try:
+        return max(int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0)
+    finally:
+        capture.release()
+
+
 def read_video(
     path: str | Path,
     *,

@@ -145,7 +145,8 @@ def event_camera(
     camera = recording_cost(events, fps, timestamp_bits) if events else {}
 
     # ---- the clip ----------------------------------------------------------------------------
-    clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
+    widest = max((rep.out_channels(3) for rep in representations.values()), default=0)
+    clip, data = video_or_scene(video, frames, height, width, seed, widest)  # (T, 3, H, W)
 
     # ---- every representation ----------------------------------------------------------------
     metrics: dict[str, Any] = {**data, "data/size": f"{width}x{height}", "data/fps": fps}

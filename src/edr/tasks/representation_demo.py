@@ -49,7 +49,8 @@ def representation_demo(
     if show_frame is not None and not 0 <= show_frame < frames:
         raise ConfigError(f"task.show_frame={show_frame}: expected 0 to {frames - 1}")
     # ---- the clip ----------------------------------------------------------------------------
-    clip, data = video_or_scene(video, frames, height, width, seed)  # (T, 3, H, W)
+    widest = max((rep.out_channels(3) for rep in representations.values()), default=0)
+    clip, data = video_or_scene(video, frames, height, width, seed, widest)  # (T, 3, H, W)
     source = data["data/video"] if video else f"the generated scene of seed {seed}"
     t_count = clip.shape[0]
     if t_count < 2:
