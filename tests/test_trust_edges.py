@@ -135,3 +135,15 @@ def test_a_clip_whose_representation_cannot_fit_is_refused_before_it_is_made(cli
     assert "its float32 copy and a 2-channel float32 representation of it would take" in (
         result.stdout + result.stderr
     )
+
+
+def test_a_crop_the_backbone_cannot_take_is_refused_before_decoding(compose_config, tmp_path):
+    """issue 57 (older battery): task.crop=1 was a traceback after every video was decoded."""
+    from edr.checks.config import ConfigError
+    from edr.run import run
+
+    out = tmp_path / "run"
+    with pytest.raises(ConfigError, match=r"task\.crop=1, task\.frames=8: the backbone cannot"):
+        run(compose_config("task=kth", "debug=tiny", "task.crop=1",
+                           f"task.cache_dir={tmp_path / 'cache'}", f"out_dir={out}"))  # fmt: skip
+    assert not (tmp_path / "cache").exists()  # refused before any video was generated or decoded

@@ -153,6 +153,7 @@ def fit_recognition(
     ``normalize_input``: each channel of the backbone's input standardised
     (:func:`edr.models.input_norm`), whatever the representation."""
     _check_sizes(crop, resize, frames, batch_size, 1 if gray else 3, representation)
+    _check_backbone_takes(backbone, representation, 1 if gray else 3, frames, crop)
     dev = torch_device(device)
     data = _Data.find(data_root, synthetic, cache_dir, videos)
     checkpoint = out_dir / CHECKPOINT
@@ -363,6 +364,28 @@ def _check_sizes(
         f"{crop}x{crop}, float32)",
         batch_size * in_frames * representation.out_channels(channels) * crop * crop * 4,
     )
+
+
+def _check_backbone_takes(
+    backbone: Callable[..., nn.Module], representation: Representation, channels: int,
+    frames: int, crop: int,
+) -> None:  # fmt: skip
+    """One line, before any video is decoded, for clips the backbone cannot take (a crop
+    smaller than its convolutions and pooling need): one clip of zeros through a fresh one."""
+    clip_frames = frames if representation.precompute else representation.out_frames(frames)
+    in_channels = representation.out_channels(channels)
+    try:
+        with torch.no_grad():  # a backbone may probe its own sizes as it is built
+            network = backbone(in_channels=in_channels, num_classes=2, frames=clip_frames,
+                               height=crop, width=crop)  # fmt: skip
+            network.eval()(torch.zeros(1, clip_frames, in_channels, crop, crop))
+    except RuntimeError as error:
+        reason = " ".join(str(error).split())[:160]
+        raise ConfigError(
+            f"task.crop={crop}, task.frames={frames}: the backbone "
+            f"cannot take clips of {clip_frames} frames at {crop}x{crop} ({reason}): use a "
+            "larger task.crop (or more task.frames)"
+        ) from None
 
 
 def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
