@@ -147,3 +147,17 @@ def test_a_crop_the_backbone_cannot_take_is_refused_before_decoding(compose_conf
         run(compose_config("task=kth", "debug=tiny", "task.crop=1",
                            f"task.cache_dir={tmp_path / 'cache'}", f"out_dir={out}"))  # fmt: skip
     assert not (tmp_path / "cache").exists()  # refused before any video was generated or decoded
+
+
+def test_a_learnable_edr_driven_to_nan_warns_instead_of_giving_zeros_silently() -> None:
+    """issue 57 (older battery): NaN parameters made every event 0, with no word."""
+    import torch
+
+    from edr.representations import EDR
+
+    edr = EDR(learnable=True, color="gray")
+    with torch.no_grad():
+        next(edr.parameters()).fill_(float("nan"))
+    clip = torch.randint(0, 255, (1, 4, 1, 16, 16), dtype=torch.uint8)
+    with pytest.warns(RuntimeWarning, match="left its range"):
+        edr(clip)

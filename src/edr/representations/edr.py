@@ -17,6 +17,7 @@ ON/OFF pair. Output channel order: for each input channel c, for each timescale 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from typing import Literal, NamedTuple
 
@@ -295,6 +296,13 @@ class EDR(Representation):
         (:mod:`edr.representations.buffers`).
         """
         check_clip(frames, name="frames", dtype=self._compute_dtype)
+        if self.learnable and (problem := self.out_of_range()) is not None:
+            warnings.warn(  # training records this as a divergence; a caller should hear it too
+                f"{problem}: the events this layer gives are not EDR's (NaN thresholds give "
+                "none at all)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         b, t, c, h, w = frames.shape
         shape = (b, t, self.out_channels(c), h, w)
         if self.can_fuse(frames):
