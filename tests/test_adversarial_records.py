@@ -326,6 +326,14 @@ def test_a_run_found_in_two_folders_says_which_record_the_tables_take(tmp_path) 
     assert "the tables take the newest" in line and "left out:" in line
 
 
+def test_a_folder_named_run_json_is_listed_as_unreadable(tmp_path) -> None:
+    """issue 57 (older battery): it was skipped without a word."""
+    _write(tmp_path / "runs" / "good", _record())
+    (tmp_path / "runs" / "odd" / "run.json").mkdir(parents=True)
+    printed = _render(tmp_path / "runs", tmp_path / "out")
+    assert "odd/run.json: a folder named run.json: a run's record is a file" in printed
+
+
 def test_an_out_folder_that_cannot_be_written_is_one_line(tmp_path, monkeypatch, capsys) -> None:
     _write(tmp_path / "runs" / "good", _record())
     locked = tmp_path / "locked"

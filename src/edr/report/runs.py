@@ -179,10 +179,11 @@ def _holds_records(link: Path) -> bool:
 def _find(root: Path) -> tuple[list[Path], list[dict[str, Any]]]:
     """(every ``run.json`` under ``root`` that is a file, no link; a row for each link among
     them and each linked folder that holds records: those are not followed, and said so)."""
-    records, links = [], []
+    records, links, folders = [], [], []
     for folder, dirs, files in os.walk(root):
         here = Path(folder)
         links += [here / name for name in dirs if _holds_records(here / name)]
+        folders += [here / name for name in dirs if name == RECORD_NAME]
         if RECORD_NAME in files:
             (links if (here / RECORD_NAME).is_symlink() else records).append(here / RECORD_NAME)
     skipped = [
@@ -190,6 +191,10 @@ def _find(root: Path) -> tuple[list[Path], list[dict[str, Any]]]:
          "error": f"a symbolic link (to {os.path.realpath(link)}): not followed; pass its "
                   "target with --runs to read it"}
         for link in links
+    ] + [
+        {"record": _shown(folder), "status": "unreadable",
+         "error": "a folder named run.json: a run's record is a file"}
+        for folder in folders
     ]  # fmt: skip
     return records, skipped
 
