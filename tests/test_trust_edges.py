@@ -161,3 +161,29 @@ def test_a_learnable_edr_driven_to_nan_warns_instead_of_giving_zeros_silently() 
     clip = torch.randint(0, 255, (1, 4, 1, 16, 16), dtype=torch.uint8)
     with pytest.warns(RuntimeWarning, match="left its range"):
         edr(clip)
+
+
+def test_a_slurm_sweep_without_a_cluster_is_one_line(cli, tmp_path) -> None:
+    """issue 57: hydra/launcher=slurm with no srun, or a controller down, was submitit's trace."""
+    python_only = str(Path(sys.executable).parent)
+    sweep = (
+        "-m",
+        "hydra/launcher=slurm",
+        "task=kth",
+        "debug=tiny",
+        f"hydra.sweep.dir={tmp_path}/s",
+    )
+    result = cli("edr-run", *sweep, cwd=tmp_path, env={"PATH": f"{python_only}:/bin"})
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "hydra/launcher=slurm: no srun, sbatch, sinfo on the PATH" in result.stderr
+    fake = tmp_path / "bin"  # a cluster whose controller is down
+    fake.mkdir()
+    for tool, body in {"srun": "exit 0", "sbatch": "exit 0",
+                       "sinfo": "echo 'slurm_load_partitions: Unable to contact slurm controller' >&2; exit 1"}.items():  # fmt: skip
+        (fake / tool).write_text(f"#!/bin/sh\n{body}\n")
+        (fake / tool).chmod(0o755)
+    result = cli("edr-run", *sweep, cwd=tmp_path, env={"PATH": f"{fake}:{python_only}:/bin"})
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert (
+        "sinfo failed (slurm_load_partitions: Unable to contact slurm controller)" in result.stderr
+    )

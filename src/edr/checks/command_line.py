@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import shutil
+import subprocess
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -82,6 +84,31 @@ def _refuse_twice_given(overrides: Sequence[Override]) -> None:
         seen[key] = override.input_line
 
 
+SLURM_HELP = (
+    "run the sweep on a Slurm cluster's login node, or start a one-node cluster on this "
+    "machine with sweeps/slurm-local.sh start (docs/runs.md, On Slurm)"
+)
+
+
+def _check_slurm_answers() -> None:
+    """One line when ``hydra/launcher=slurm`` has no cluster to submit to: no ``srun`` or
+    ``sbatch`` on the PATH, or a controller that does not answer ``sinfo`` (10 s)."""
+    missing = [tool for tool in ("srun", "sbatch", "sinfo") if shutil.which(tool) is None]
+    if missing:
+        raise ConfigError(
+            f"hydra/launcher=slurm: no {', '.join(missing)} on the PATH: {SLURM_HELP}"
+        )
+    try:
+        answer = subprocess.run(["sinfo", "-h"], capture_output=True, text=True, timeout=10)
+    except subprocess.TimeoutExpired:
+        raise ConfigError(
+            f"hydra/launcher=slurm: the Slurm controller did not answer sinfo in 10 s: {SLURM_HELP}"
+        ) from None
+    if answer.returncode != 0:
+        said = " ".join(answer.stderr.split())[:200] or f"exit status {answer.returncode}"
+        raise ConfigError(f"hydra/launcher=slurm: sinfo failed ({said}): {SLURM_HELP}")
+
+
 def check_command_line(
     argv: Sequence[str], conf_dir: str | Path, check: Callable[[DictConfig], None]
 ) -> None:
@@ -98,6 +125,11 @@ def check_command_line(
         raise ConfigError(" ".join(str(error).split())) from None
     ours = [o for o in parsed if not o.key_or_group.startswith("hydra")]
     _refuse_twice_given(ours)
+    if args.multirun and any(
+        o.key_or_group == "hydra/launcher" and o.get_value_element_as_str() == "slurm"
+        for o in parsed
+    ):
+        _check_slurm_answers()
     groups = sorted(p.name for p in Path(conf_dir).iterdir() if p.is_dir())
     chosen = [o for o in ours if o.key_or_group in groups]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
