@@ -11,7 +11,7 @@ import pandas as pd
 
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, placeable, run_history, unfinished
+from edr.report.runs import cells, finished, placeable, run_attempts, run_history, unfinished
 
 # A record's task.env.inputs as Table 1 names it (events alone, "edr", is beyond the paper).
 INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}
@@ -270,6 +270,33 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
     return "\n".join(lines)
 
 
+def _budget_note(done: pd.DataFrame) -> str:
+    """How the rows of several budgets relate, and which runs continue a run of another config
+    (an attempt of theirs ran under another fingerprint: Table 1's screening, whose settings
+    were chosen on those runs)."""
+    said = (
+        "Budgets: a lane (sweeps/table1_lane.sh) trains each run once to its budget, and the "
+        "steps-to rows read its one curve at every score. Rows of two budgets of one game are "
+        "separate runs per seed: started alike (same seed), they repeat each other for the "
+        "first 1.5-2.6M env steps, then part; they are not independent samples, and the "
+        "longer is not a continuation of the shorter."
+    )
+    continued = sorted(
+        f"{g} {INPUT_NAMES.get(i, i)} seed {int(seed)} at {b}"
+        for g, i, b, seed, record, fingerprint in zip(
+            done["game"], done["input"], done["budget"], done["seed"], done["record"],
+            done["fingerprint"], strict=True,
+        )
+        if any(a.get("fingerprint") not in (None, fingerprint) for a in run_attempts(record))
+    )  # fmt: skip
+    if continued:
+        said += (
+            " These runs continue a run of another config (the screening that chose the "
+            f"settings, on these very runs): {', '.join(continued)}."
+        )
+    return said
+
+
 def _evaluation_note(done: pd.DataFrame) -> str:
     """How the rows' games were played: in eval mode (running statistics), or, for records from
     before that fix (no ``eval/network_mode``), in training mode; and the policy."""
@@ -336,6 +363,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a run "
             "(30 full games at full scale), each then averaged over seeds (± std).",
             _evaluation_note(done),
+            _budget_note(done),
             "Env steps/s: the training loop's throughput (`train/fps`, from the start of a "
             "run's last attempt), on the machine named, with whatever else ran beside it.",
         ],

@@ -14,6 +14,7 @@ every run folder reached through a symbolic link, each with the reason.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from collections.abc import Callable, Iterable, Sequence
@@ -312,6 +313,23 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
     if frame.empty:
         return frame.reindex(columns=columns)
     return frame.sort_values(list(labels), key=lambda c: c.astype(str), kind="stable")
+
+
+def run_attempts(record: str) -> list[dict[str, Any]]:
+    """The lines of a run's ``attempts.jsonl`` (beside its record): each attempt's outcome and
+    the fingerprint it ran under; none where it has no such file or a line does not read."""
+    path = Path(record).parent / "attempts.jsonl"
+    try:
+        lines = path.read_text().splitlines()
+    except OSError:
+        return []
+    found = []
+    for line in lines:
+        with contextlib.suppress(json.JSONDecodeError):
+            entry = json.loads(line)
+            if isinstance(entry, dict):
+                found.append(entry)
+    return found
 
 
 def run_history(record: str) -> list[dict[str, Any]]:

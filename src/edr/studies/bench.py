@@ -387,7 +387,7 @@ def run_speed_bench(args: argparse.Namespace, repeats: int) -> None:
     }
     name = f"speed_{record['machine']['hostname']}_{record['measured_at']}.json"
     path = write_json_atomic(args.out_dir / name, record)
-    print(speed_table(record, load_published().get("speed", {}), str(path)))
+    print(speed_table([(path, record)], load_published().get("speed", {})))
     print(f"record: {path} (edr-tables renders paper/table2_speed.md from the latest record)")
 
 

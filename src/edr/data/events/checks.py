@@ -1,12 +1,18 @@
 """What every event recording must satisfy, and the one error a bad file gives.
 
-A reader decodes a file in chunks (structured arrays of ``EVENT_DTYPE``); :class:`Checked`
-checks each chunk as it comes (timestamps >= 0 and sorted across chunks, x/y on the sensor)
-so a bad file is refused in one line naming the file, its format and what is wrong.
+A reader decodes a file in chunks (structured arrays of ``EVENT_DTYPE``, built by
+:func:`events_of`, which refuses a value its field cannot hold: a float time, an x beyond
+int16, a polarity other than 0/1); :class:`Checked` checks each chunk as it comes (timestamps
+>= 0 and sorted across chunks, x/y on the sensor) so a bad file is refused in one line naming
+the file, its format and what is wrong. The other bounds every reader and writer share live
+here too: :func:`regular_file`, :func:`bounded_sensor` (a sensor's size), :func:`stated_t0`
+and :func:`time_origin` (the time a header states its timestamps count from).
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -19,22 +25,115 @@ from edr.checks.config import ConfigError
 EVENT_DTYPE = np.dtype([("t", np.int64), ("x", np.int16), ("y", np.int16), ("p", np.int8)])
 
 CHUNK_EVENTS = 1 << 20  # events a reader decodes at a time: memory stays bounded on a large file
-# The widest sensor any format here addresses (EVT 3.0: 11-bit x and y). A recording that does
-# not state its sensor is taken to span its events, refused beyond this side.
-MAX_SIDE = 2048
+# The largest sensor side read or written (DAT's 14-bit x and y; real sensors are <= 1280): a
+# header stating more is refused, and a recording that states no sensor spans at most this.
+MAX_SIDE = 16384
+# The latest time origin (µs, 146,000 years) a header may state: the origin plus any format's
+# clock (32-bit AEDAT 2.0, wrapped 24-bit EVT 3.0) stays inside int64.
+MAX_T0 = 1 << 62
+# What a value beyond its field's integer type is, as its one line says
+BEYOND = {"t": "µs, beyond int64", "x": "outside any sensor (beyond int16)",
+          "y": "outside any sensor (beyond int16)", "p": "is not a polarity (0 OFF, 1 ON)"}  # fmt: skip
 
 
 class RecordingError(ConfigError):
-    """A file that cannot be read as an event recording; one line: file, format, what is wrong."""
+    """A file that cannot be read or written as an event recording; one line: file, format,
+    what is wrong."""
 
     def __init__(self, path: str | Path, format_name: str, problem: str) -> None:
         super().__init__(f"{path}: {format_name}: {problem}")
 
 
+class UnfitValue(ValueError):
+    """A decoded value its EVENT_DTYPE field cannot hold; the caller, who knows the file and
+    format, makes it a :class:`RecordingError` (the decoders that raise it do not)."""
+
+
+def regular_file(path: Path) -> None:
+    """Refuse anything but a regular file (a FIFO's open() would block forever, a folder's fail
+    late), naming what it is."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as error:
+        raise RecordingError(path, "event file", f"cannot be read ({error.strerror})") from None
+    if not stat.S_ISREG(mode):
+        kind = ("a folder" if stat.S_ISDIR(mode) else "a named pipe (FIFO)"
+                if stat.S_ISFIFO(mode) else "a device or socket")  # fmt: skip
+        raise RecordingError(path, "event file", f"not a regular file ({kind})")
+
+
+def bounded_sensor(
+    path: str | Path, format_name: str, sensor: tuple[int, int] | None, side: int = MAX_SIDE
+) -> tuple[int, int] | None:
+    """``sensor`` (height, width), refused unless each side lies in 1..``side``."""
+    if sensor is not None and not all(0 < s <= side for s in sensor):
+        raise RecordingError(
+            path, format_name,
+            f"sensor {sensor[1]}x{sensor[0]} (width x height) outside 1..{side} on a side",
+        )  # fmt: skip
+    return sensor
+
+
+def stated_t0(path: str | Path, format_name: str, value: str | None) -> int:
+    """The time origin (µs) a header's ``value`` states, 0 where it states none."""
+    if value is None:
+        return 0
+    if not (value.isascii() and value.isdigit() and int(value) <= MAX_T0):
+        raise RecordingError(path, format_name, f"its header's t0 {value!r} is not 0..2^62 µs")
+    return int(value)
+
+
+def time_origin(path: str | Path, format_name: str, t: np.ndarray, span_us: int) -> int:
+    """The time a writer stores timestamps ``t`` after (the earliest; 0 for none), refused
+    before anything is written when they span more than the format's clock holds (``span_us``)
+    or the origin could not be read back (:func:`stated_t0`)."""
+    if not len(t):
+        return 0
+    first, last = int(t.min()), int(t.max())  # a direct write may come unsorted
+    if not 0 <= first <= MAX_T0:
+        raise RecordingError(path, format_name, f"timestamp {first} µs outside 0..2^62")
+    if last - first > span_us:
+        raise RecordingError(
+            path, format_name,
+            f"timestamps span {last - first} µs ({first} to {last}); it holds at most "
+            f"{span_us} µs after the first event",
+        )  # fmt: skip
+    return first
+
+
+def unfit(name: str, value: int) -> UnfitValue:
+    """The error for ``value`` of field ``name`` beyond what the field holds."""
+    return UnfitValue(f"{name} = {value} {BEYOND[name]}")
+
+
+def _fitted(name: str, column: np.ndarray) -> np.ndarray:
+    """``column`` unchanged where field ``name`` of EVENT_DTYPE holds its every value: numpy's
+    assignment would wrap the others silently (x 70000 -> 4464, t 0.5 s -> 0, p 256 -> 0)."""
+    if column.dtype.kind not in ("biu" if name == "p" else "iu"):  # p may come as bool (ON)
+        unit = ": timestamps are integer microseconds" if name == "t" else ""
+        raise UnfitValue(f"{name} holds {column.dtype} values, not integers{unit}")
+    field = EVENT_DTYPE[name]
+    if not len(column) or column.dtype == bool:
+        return column
+    if name == "p":  # int8, but only 0 and 1 mean something
+        low, high = 0, 1
+    elif np.can_cast(column.dtype, field):  # a type no wider: every value fits
+        return column
+    else:
+        low, high = int(np.iinfo(field).min), int(np.iinfo(field).max)
+    found_low = 0 if column.dtype.kind == "u" else int(column.min())  # one pass less
+    found_high = int(column.max())
+    if found_low < low or found_high > high:
+        raise unfit(name, found_low if found_low < low else found_high)
+    return column
+
+
 def events_of(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Four equal-length columns -> events (N,) EVENT_DTYPE (p: 1 ON, 0 OFF)."""
+    """Four equal-length integer columns -> events (N,) EVENT_DTYPE (p: 1 ON, 0 OFF); a value
+    its field cannot hold raises :class:`UnfitValue`."""
     events = np.empty(len(t), EVENT_DTYPE)
-    events["t"], events["x"], events["y"], events["p"] = t, x, y, p
+    for name, column in zip("txyp", (t, x, y, p), strict=True):
+        events[name] = _fitted(name, np.asarray(column))
     return events
 
 
@@ -92,7 +191,7 @@ class Checked:
             )
         if t[0] < 0:  # sorted: the first is the least
             raise self.fail(f"timestamp {int(t[0])} µs is negative (event {self.count})")
-        sensor = "its sensor" if self.stated else "the widest sensor a format addresses"
+        sensor = "its sensor" if self.stated else f"the largest sensor read ({MAX_SIDE})"
         for field, low, high, size, axis in (("x", x_low, x_high, self.width, "width"),
                                              ("y", y_low, y_high, self.height, "height")):  # fmt: skip
             if low < 0 or high >= size:

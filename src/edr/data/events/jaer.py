@@ -1,7 +1,9 @@
 """jAER's and cAER's files: AEDAT 2.0 (DVS128 and DAVIS chips) and AEDAT 3.1 (polarity packets).
 
 AEDAT 2.0: '#' header lines (``# AEChip: <java class>`` names the chip), then big-endian
-(uint32 address, uint32 timestamp µs) pairs.
+(uint32 address, uint32 timestamp µs) pairs. This suite writes the timestamps after the first
+event's and states that time in a ``# t0 <µs>`` header line, added back when read: a 32-bit
+timestamp holds 71 minutes, not a camera's epoch clock (1.6e15 µs).
 - DVS128 (also when no chip is named, as the paper's sensor): polarity in bit 0 (1 = OFF),
   x in bits 1-7 (mirrored), y in bits 8-14.
 - DAVIS240 / DAVIS346: a DVS event has bits 31 (APS sample) and 10 (IMU / special) clear;
@@ -21,7 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of
+from edr.data.events.checks import (
+    CHUNK_EVENTS,
+    RecordingError,
+    events_of,
+    stated_t0,
+    time_origin,
+)
 from edr.store.atomic import atomic_path
 
 # jAER chip -> (height, width); the name as it appears in headers, matched case-insensitively
@@ -59,6 +67,11 @@ def _chip(lines: list[str], key: str) -> str | None:
     return None
 
 
+def _value(lines: list[str], key: str) -> str | None:
+    """The rest of the first header line starting with ``key``, or None."""
+    return next((line[len(key) :].strip() for line in lines if line.startswith(key)), None)
+
+
 def _body(path: Path, offset: int) -> np.ndarray:
     """The file's bytes from ``offset`` on, memory-mapped (empty when there are none)."""
     size = path.stat().st_size - offset
@@ -70,6 +83,8 @@ def _body(path: Path, offset: int) -> np.ndarray:
 
 
 AEDAT2_HEADER_END = b"#End Of ASCII Header"  # jAER's last header line, where it writes one
+AEDAT2_T0 = "# t0 "  # this suite's header line: the µs the 32-bit timestamps count from
+AEDAT2_SPAN_US = (1 << 32) - 1  # the latest a 32-bit timestamp reaches after t0
 
 
 def aedat2_chip(path: Path) -> str:
@@ -95,6 +110,7 @@ def aedat2_chunks(path: Path) -> Iterator[np.ndarray]:
     lines, offset = _header(path, AEDAT2_HEADER_END)
     if not lines or not lines[0].startswith("#!AER-DAT2"):
         raise RecordingError(path, "AEDAT 2.0", "its first line is not '#!AER-DAT2.0'")
+    t0 = stated_t0(path, "AEDAT 2.0", _value(lines, AEDAT2_T0))
     body = _body(path, offset)
     if len(body) % 8:
         raise RecordingError(
@@ -103,7 +119,7 @@ def aedat2_chunks(path: Path) -> Iterator[np.ndarray]:
     words = body.view(">u4").reshape(-1, 2)  # (N, 2): address, timestamp
     for start in range(0, len(words), CHUNK_EVENTS):
         address = words[start : start + CHUNK_EVENTS, 0].astype(np.int64)
-        t = words[start : start + CHUNK_EVENTS, 1].astype(np.int64)
+        t = words[start : start + CHUNK_EVENTS, 1].astype(np.int64) + t0
         if chip == "dvs128":
             x, y, p = 127 - ((address >> 1) & 0x7F), (address >> 8) & 0x7F, 1 - (address & 1)
         else:
@@ -118,8 +134,11 @@ def write_aedat2(
     path: str | Path, events: np.ndarray, sensor: tuple[int, int] = (128, 128)
 ) -> Path:
     """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) as AEDAT 2.0, naming the smallest
-    jAER chip that holds the sensor (DVS128, DAVIS240, DAVIS346)."""
+    jAER chip that holds the sensor (DVS128, DAVIS240, DAVIS346); their timestamps after the
+    first event's, that time in a ``# t0`` line (refused, before anything is written, when
+    they span more than a 32-bit timestamp holds)."""
     path = Path(path)
+    t0 = time_origin(path, "AEDAT 2.0", events["t"], AEDAT2_SPAN_US)
     chip = next(
         (c for c in AEDAT2_CHIP_CLASSES if CHIPS[c][0] >= sensor[0] and CHIPS[c][1] >= sensor[1]),
         None,
@@ -133,10 +152,12 @@ def write_aedat2(
         address = ((127 - x) << 1) | (y << 8) | (1 - p)
     else:
         address = (x << 12) | ((height - 1 - y) << 22) | (p << 11)
-    words = np.stack([address, events["t"].astype(np.uint32)], axis=1).astype(">u4")  # (N, 2)
+    t = (events["t"] - t0).astype(np.uint32)  # time_origin: each fits
+    words = np.stack([address, t], axis=1).astype(">u4")  # (N, 2)
     header = (
         f"#!AER-DAT2.0\r\n# This is a raw AE data file created by edr\r\n"
-        f"# AEChip: {AEDAT2_CHIP_CLASSES[chip]}\r\n{AEDAT2_HEADER_END.decode()}\r\n"
+        f"# AEChip: {AEDAT2_CHIP_CLASSES[chip]}\r\n{AEDAT2_T0}{t0}\r\n"
+        f"{AEDAT2_HEADER_END.decode()}\r\n"
     )
     with atomic_path(path) as tmp:
         tmp.write_bytes(header.encode() + words.tobytes())

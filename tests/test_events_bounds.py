@@ -1,0 +1,356 @@
+"""What every event reader and writer accepts, and the one line it gives for the rest: times
+beyond a format's clock, values beyond their fields, sensor sizes, things that are not files,
+and memory in proportion to the events (docs/events.md, "What a reader and writer accept")."""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+import threading
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edr.data.events import (
+    RecordingError,
+    iter_recording,
+    prophesee,
+    read_recording,
+    recording_sensor_size,
+    write_recording,
+)
+from edr.data.events.checks import EVENT_DTYPE
+
+T = 1_605_537_493_718_345  # a real AEDAT 4 camera's clock (DV: µs since 1970)
+WRAP = 1 << 24  # EVT 3.0's clock: 24 bits
+
+
+def _events(t, x=1, y=2, p=1) -> np.ndarray:
+    events = np.zeros(len(t), EVENT_DTYPE)
+    events["t"], events["x"], events["y"], events["p"] = t, x, y, p
+    return events
+
+
+def _one_line(caught: pytest.ExceptionInfo, path: Path) -> str:
+    message = str(caught.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message
+    return message
+
+
+def _faery_if(suffix: str) -> None:
+    if suffix in (".raw", ".aedat4"):
+        pytest.importorskip("faery")
+
+
+# 1, 2: a camera's clock, written relative to the first event, its origin read back
+
+
+@pytest.mark.parametrize("start", [T, 1 << 55])
+@pytest.mark.parametrize("suffix", [".aedat", ".raw"])
+def test_a_camera_clock_round_trips_in_bytes_proportional_to_the_events(
+    tmp_path, suffix, start
+) -> None:
+    _faery_if(suffix)
+    events = _events([start, start + 10, start + 3 * WRAP + 7], x=[1, 2, 3])  # EVT 3.0 wraps
+    path = write_recording(tmp_path / f"rec{suffix}", events, (128, 128))
+    assert path.stat().st_size < 1024  # 765 MB for EVT 3.0 at T when written absolute
+    np.testing.assert_array_equal(read_recording(path), events)
+    assert [f.name for f in tmp_path.iterdir()] == [path.name]  # no temporary file left
+
+
+SPANS = {".aedat": ("AEDAT 2.0", 1 << 32), ".raw": ("EVT 3.0", 1 << 55)}
+
+
+@pytest.mark.parametrize("suffix", SPANS)
+def test_a_span_its_clock_cannot_hold_is_refused_before_writing(tmp_path, suffix) -> None:
+    _faery_if(suffix)
+    name, span = SPANS[suffix]
+    path = tmp_path / f"rec{suffix}"
+    with pytest.raises(RecordingError, match=rf": {name}: timestamps span {span} µs") as caught:
+        write_recording(path, _events([T, T + span]), (128, 128))
+    _one_line(caught, path)
+    assert not list(tmp_path.iterdir())  # nothing written, not even a temporary file
+
+
+@pytest.mark.parametrize("suffix", [".raw", ".aedat4"])
+def test_a_writer_failing_midway_leaves_no_file(tmp_path, monkeypatch, suffix) -> None:
+    faery = pytest.importorskip("faery")
+
+    class HalfWritten:
+        def to_file(self, target, **options):
+            Path(target).write_bytes(b"% evt 3.0\n" + bytes(1000))
+            raise RuntimeError("disk full")
+
+    monkeypatch.setattr(faery, "events_stream_from_array", lambda *a, **k: HalfWritten())
+    with pytest.raises(RuntimeError, match="disk full"):
+        write_recording(tmp_path / f"rec{suffix}", _events([1, 2]), (8, 8))
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_dat_files_t0_is_read_back(tmp_path) -> None:
+    faery = pytest.importorskip("faery")
+    packet = np.zeros(3, faery.EVENTS_DTYPE)
+    packet["t"], packet["x"], packet["on"] = [T, T + 10, T + 50_000_000], [3, 4, 5], True
+    path = tmp_path / "rec.dat"
+    faery.events_stream_from_array(packet, dimensions=(64, 32)).to_file(path, zero_t0=True)
+    assert b"% T0 " in path.read_bytes()[:100]  # its times are after this one
+    np.testing.assert_array_equal(read_recording(path)["t"], packet["t"])
+
+
+BAD_T0 = {  # a header's stated origin: (file, its one line)
+    "EVT 3.0 '% t0 -5'": (
+        lambda p: _written(p, b"% evt 3.0\n% geometry 8x8\n% t0 -5\n" + bytes(4)),
+        "EVT 3.0: its header's t0 '-5' is not 0..2^62 µs",
+    ),
+    "AEDAT 2.0 '# t0 1e9'": (
+        lambda p: _written(p, b"#!AER-DAT2.0\r\n# t0 1e9\r\n" + bytes(8)),
+        "AEDAT 2.0: its header's t0 '1e9' is not 0..2^62 µs",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", BAD_T0)
+def test_a_time_origin_that_is_no_time_is_refused(tmp_path, case) -> None:
+    make, problem = BAD_T0[case]
+    path = make(tmp_path / ("rec.raw" if "EVT" in case else "rec.aedat"))
+    with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
+        read_recording(path)
+    _one_line(caught, path)
+
+
+# 3: values beyond their fields, refused by their value (never wrapped or truncated)
+
+
+def _aedat4_with_polarity_byte(path: Path, byte: int) -> Path:
+    """An uncompressed AEDAT 4 file of three events, the second's ``on`` byte set to ``byte``."""
+    faery = pytest.importorskip("faery")
+    packet = np.zeros(3, faery.EVENTS_DTYPE)
+    packet["t"], packet["x"], packet["y"], packet["on"] = [1, 5, 9], [0, 3, 7], 2, True
+    faery.events_stream_from_array(packet, dimensions=(8, 8)).to_file(path, compression=None)
+    stored = struct.pack("<qhh?", 5, 3, 2, True)  # DV's event: int64 t, int16 x, y, bool on
+    data = path.read_bytes()
+    assert data.count(stored) == 1
+    path.write_bytes(data.replace(stored, stored[:-1] + bytes([byte])))
+    return path
+
+
+def _written(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+def _npz(path: Path, **arrays) -> Path:
+    columns = {"t": [0, 10], "x": [1, 2], "y": [3, 4], "p": [0, 1], **arrays}
+    with path.open("wb") as f:
+        np.savez(f, **{k: np.asarray(v) for k, v in columns.items()})
+    return path
+
+
+def _dsec(path: Path, x: list[int]) -> Path:
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(path, "w") as f:
+        f["events/t"], f["events/y"] = np.arange(len(x)), np.zeros(len(x), np.uint16)
+        f["events/x"], f["events/p"] = np.asarray(x, np.int32), np.ones(len(x), np.uint8)
+    return path
+
+
+BAD_VALUES = {  # a file whose values numpy would narrow silently: (file, its one line)
+    "AEDAT 4 polarity byte 2": (
+        lambda d: _aedat4_with_polarity_byte(d / "rec.aedat4", 2),
+        "AEDAT 4: p = 2 is not a polarity (0 OFF, 1 ON)",
+    ),
+    "AEDAT 4 polarity byte 255": (
+        lambda d: _aedat4_with_polarity_byte(d / "rec.aedat4", 255),
+        "AEDAT 4: p = 255 is not a polarity",
+    ),
+    ".npz float seconds": (
+        lambda d: _npz(d / "rec.npz", t=[0.25, 0.5]),
+        ".npz: t holds float64 values, not integers: timestamps are integer microseconds",
+    ),
+    ".npz x that int16 wraps to 3": (
+        lambda d: _npz(d / "rec.npz", x=[-65533, 2]),
+        ".npz: x = -65533 outside any sensor (beyond int16)",
+    ),
+    ".npz p that int8 wraps to 0": (
+        lambda d: _npz(d / "rec.npz", p=[256, 1]),
+        ".npz: p = 256 is not a polarity",
+    ),
+    "DSEC x beyond 16 bits": (
+        lambda d: _dsec(d / "events.h5", [70000, 1]),
+        "HDF5: x = 70000 outside any sensor",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", BAD_VALUES)
+def test_a_value_beyond_its_field_is_refused_by_its_value(tmp_path, case) -> None:
+    make, problem = BAD_VALUES[case]
+    path = make(tmp_path)
+    with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
+        read_recording(path)
+    _one_line(caught, path)
+
+
+def _float_times() -> np.ndarray:
+    events = np.zeros(2, [("t", "f8"), ("x", "i2"), ("y", "i2"), ("p", "i1")])
+    events["t"] = [0.25, 0.5]  # seconds: integer µs would truncate them to 0
+    return events
+
+
+BAD_WRITES = {  # events a writer would narrow silently: (events, their one line)
+    "float t": (_float_times, "t holds float64 values, not integers: timestamps are integer"),
+    "p = 2": (lambda: _events([1, 2], p=[1, 2]), "p = 2 is not a polarity"),
+}
+
+
+@pytest.mark.parametrize("suffix", [".aedat", ".raw", ".aedat4", ".npz"])
+@pytest.mark.parametrize("case", BAD_WRITES)
+def test_a_writer_refuses_values_beyond_their_fields(tmp_path, case, suffix) -> None:
+    _faery_if(suffix)
+    make, problem = BAD_WRITES[case]
+    path = tmp_path / f"rec{suffix}"
+    with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
+        write_recording(path, make(), (8, 8))
+    _one_line(caught, path)
+    assert not list(tmp_path.iterdir())
+
+
+# 3: sensor sizes, bounded in one place for every reader and the writer
+
+
+def _aedat4_of_width(path: Path, stated: bytes) -> Path:
+    """An AEDAT 4 file whose description states a width of ``stated`` (5 digits)."""
+    faery = pytest.importorskip("faery")
+    packet = np.zeros(2, faery.EVENTS_DTYPE)
+    packet["t"] = [1, 2]
+    faery.events_stream_from_array(packet, dimensions=(12345, 8)).to_file(path)
+    data = path.read_bytes()
+    assert data.count(b">12345<") == 1  # the same length: the flatbuffer stays whole
+    path.write_bytes(data.replace(b">12345<", b">" + stated + b"<"))
+    return path
+
+
+HUGE_SENSORS = {  # a header stating a sensor beyond its format's side: (file, its size, side)
+    ".npz 100000 x 100000": (
+        lambda d: _npz(d / "rec.npz", sensor=[100_000, 100_000]),
+        "100000x100000",
+        16384,
+    ),
+    "AEDAT 4 99999 wide": (
+        lambda d: _aedat4_of_width(d / "rec.aedat4", b"99999"),
+        "99999x8",
+        16384,
+    ),
+    "EVT 3.0 30000 x 30000": (
+        lambda d: _written(d / "rec.raw", b"% evt 3.0\n% geometry 30000x30000\n" + bytes(4)),
+        "30000x30000",
+        2048,  # 11-bit x and y
+    ),
+}
+
+
+@pytest.mark.parametrize("case", HUGE_SENSORS)
+def test_a_sensor_beyond_its_formats_side_is_refused(tmp_path, case) -> None:
+    make, size, side = HUGE_SENSORS[case]
+    path = make(tmp_path)
+    problem = f"sensor {size} (width x height) outside 1..{side} on a side"
+    for read in (recording_sensor_size, read_recording):
+        with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
+            read(path)
+        _one_line(caught, path)
+
+
+def test_a_writer_takes_a_sensor_up_to_its_formats_side(tmp_path) -> None:
+    events = _events([1, 2], x=[3000, 4095])  # past EVT 3.0's 11-bit x, within int16
+    path = write_recording(tmp_path / "rec.npz", events, (8, 4096))
+    np.testing.assert_array_equal(read_recording(path), events)
+    assert recording_sensor_size(path) == (8, 4096)
+    for suffix, side in ((".raw", 2048), (".npz", 16384)):
+        path = tmp_path / f"big{suffix}"
+        width = 2 * side
+        with pytest.raises(RecordingError, match=rf"sensor {width}x8 .* outside 1\.\.{side} "):
+            write_recording(path, events, (8, width))
+        assert not path.exists()
+
+
+def test_a_recording_stating_no_sensor_spans_up_to_16384(tmp_path) -> None:
+    path = _npz(tmp_path / "rec.npz", x=[5000, 16383])  # DAT's 14-bit x reaches this
+    assert read_recording(path)["x"].tolist() == [5000, 16383]
+    path = _npz(tmp_path / "far.npz", x=[5000, 16384])
+    with pytest.raises(RecordingError, match=r"x = 16384 outside the largest sensor read"):
+        read_recording(path)
+
+
+# 4: only regular files are opened
+
+
+def test_a_named_pipe_is_refused_without_blocking(tmp_path) -> None:
+    fifo = tmp_path / "rec.aedat"
+    os.mkfifo(fifo)
+    outcome: list[str] = []
+
+    def read() -> None:
+        try:
+            read_recording(fifo)
+        except RecordingError as error:
+            outcome.append(str(error))
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(timeout=20)
+    if reader.is_alive():  # blocked in open(): a writer's open releases it, then fail
+        with open(fifo, "wb"):
+            pass
+        reader.join()
+        pytest.fail("read_recording blocked on a named pipe")
+    assert outcome == [f"{fifo}: event file: not a regular file (a named pipe (FIFO))"]
+
+
+def test_a_folder_is_refused_as_not_a_file(tmp_path) -> None:
+    folder = tmp_path / "rec.aedat"
+    folder.mkdir()
+    for read in (read_recording, recording_sensor_size):
+        with pytest.raises(RecordingError, match=r"not a regular file \(a folder\)") as caught:
+            read(folder)
+        _one_line(caught, folder)
+
+
+# 5: memory in proportion to the events, not the words
+
+
+def _dense_evt3(path: Path, blocks: int) -> np.ndarray:
+    """An EVT 3.0 file as dense as the format goes (12 events a word): per µs a row of 1200
+    events (TIME_HIGH, TIME_LOW, ADDR_Y, VECT_BASE_X, 100 VECT_12 with every bit set); its
+    events."""
+    i = np.arange(blocks)
+    words = np.empty((blocks, 104), np.uint16)
+    words[:, 0], words[:, 1] = 0x8000 | (i >> 12), 0x6000 | (i & 0xFFF)
+    words[:, 2], words[:, 3], words[:, 4:] = i % 720, 0x3800, 0x4FFF  # base x 0, ON
+    path.write_bytes(b"% evt 3.0\n% format EVT3;width=1280;height=720\n" + words.tobytes())
+    return _events(np.repeat(i, 1200), np.tile(np.arange(1200), blocks), np.repeat(i % 720, 1200))
+
+
+def test_evt3_chunks_are_bounded_by_events_not_words(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", 1000)
+    expected = _dense_evt3(tmp_path / "dense.raw", 50)  # 60,000 events in 5,200 words
+    sizes = [len(chunk) for chunk in iter_recording(tmp_path / "dense.raw")]
+    assert max(sizes) <= 1000 and sum(sizes) == len(expected)  # were 1000 words: 11,500 events
+    np.testing.assert_array_equal(read_recording(tmp_path / "dense.raw"), expected)
+
+
+def test_reading_a_dense_evt3_file_holds_its_events_once(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", 20_000)  # 60 chunks
+    expected = _dense_evt3(tmp_path / "dense.raw", 1000)  # 1.2M events, 15.6 MB
+    _dense_evt3(tmp_path / "warm.raw", 30)
+    read_recording(tmp_path / "warm.raw")  # numba's compiled code loaded outside the trace
+    tracemalloc.start()
+    try:
+        events = read_recording(tmp_path / "dense.raw")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1.2 * events.nbytes  # a list of the chunks and their join: 2x
+    np.testing.assert_array_equal(events, expected)
