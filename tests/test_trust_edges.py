@@ -187,3 +187,16 @@ def test_a_slurm_sweep_without_a_cluster_is_one_line(cli, tmp_path) -> None:
     assert (
         "sinfo failed (slurm_load_partitions: Unable to contact slurm controller)" in result.stderr
     )
+
+
+def test_events_to_save_in_a_format_too_small_for_the_sensor_are_refused_before_the_run(
+    compose_config, tmp_path
+) -> None:
+    """issue 57: save_events=.aedat at 640x480 failed only after every representation ran."""
+    from edr.data.events import RecordingError
+    from edr.run import run
+
+    with pytest.raises(RecordingError, match=r"AEDAT 2\.0 holds sensors up to DAVIS346's"):
+        run(compose_config("task=event_camera", "task.save_events=.aedat", "task.height=480",
+                           "task.width=640", "task.frames=6", f"out_dir={tmp_path / 'run'}"))  # fmt: skip
+    assert not list((tmp_path / "run").glob("*_events*"))

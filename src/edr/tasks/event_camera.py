@@ -27,6 +27,7 @@ import torch
 
 from edr.checks.config import ExistingFile, PositiveFloat, PositiveInt
 from edr.data.events import (
+    check_writable,
     detect_format,
     iter_recording,
     recording_sensor_size,
@@ -141,6 +142,8 @@ def event_camera(
     events of the DVS simulator and of a hard-threshold EDR into the run folder,
     ``<name>_events<suffix>``, for other event tools."""
     check_enough_frames(frames, representations)
+    if save_events:  # a sensor its format cannot hold is said now, not after the work
+        check_writable(out_dir / f"events{save_events}", (height, width))
     # ---- a real camera's recording, checked before the clip ------------------------------------
     camera = recording_cost(events, fps, timestamp_bits) if events else {}
 

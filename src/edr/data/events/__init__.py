@@ -14,6 +14,7 @@ from edr.data.events.jaer import write_aedat2
 from edr.data.events.recording import (
     FORMATS,
     RECORDING_SUFFIXES,
+    check_writable,
     detect_format,
     iter_recording,
     list_recordings,
@@ -27,6 +28,7 @@ __all__ = [
     "FORMATS",
     "RECORDING_SUFFIXES",
     "RecordingError",
+    "check_writable",
     "detect_format",
     "iter_recording",
     "list_recordings",

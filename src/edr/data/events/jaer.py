@@ -130,6 +130,18 @@ def aedat2_chunks(path: Path) -> Iterator[np.ndarray]:
         yield events_of(t, x, y, p)
 
 
+def aedat2_chip_for(path: Path, sensor: tuple[int, int]) -> str:
+    """The smallest jAER chip (a key of CHIPS) whose array holds a ``sensor`` = (height, width);
+    ValueError naming ``path`` where none does."""
+    chip = next(
+        (c for c in AEDAT2_CHIP_CLASSES if CHIPS[c][0] >= sensor[0] and CHIPS[c][1] >= sensor[1]),
+        None,
+    )
+    if chip is None:
+        raise ValueError(f"{path}: AEDAT 2.0 holds sensors up to DAVIS346's 346x260; got {sensor}")
+    return chip
+
+
 def write_aedat2(
     path: str | Path, events: np.ndarray, sensor: tuple[int, int] = (128, 128)
 ) -> Path:
@@ -139,12 +151,7 @@ def write_aedat2(
     they span more than a 32-bit timestamp holds)."""
     path = Path(path)
     t0 = time_origin(path, "AEDAT 2.0", events["t"], AEDAT2_SPAN_US)
-    chip = next(
-        (c for c in AEDAT2_CHIP_CLASSES if CHIPS[c][0] >= sensor[0] and CHIPS[c][1] >= sensor[1]),
-        None,
-    )
-    if chip is None:
-        raise ValueError(f"{path}: AEDAT 2.0 holds sensors up to DAVIS346's 346x260; got {sensor}")
+    chip = aedat2_chip_for(path, sensor)
     height = CHIPS[chip][0]
     x, y = events["x"].astype(np.uint32), events["y"].astype(np.uint32)
     p = events["p"].astype(np.uint32)

@@ -208,11 +208,10 @@ def sensor_of(path: str | Path, events: np.ndarray) -> tuple[int, int]:
     return int(events["y"].max()) + 1, int(events["x"].max()) + 1
 
 
-def write_recording(path: str | Path, events: np.ndarray, sensor: tuple[int, int]) -> Path:
-    """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) into a file whose suffix picks the
-    format: ``.raw`` EVT 3.0, ``.aedat4`` AEDAT 4, ``.aedat`` AEDAT 2.0, ``.npz``. A sensor
-    beyond the format's side, a value beyond its field (a float time, p 2) or events off the
-    sensor are refused here, before the format's writer runs."""
+def check_writable(path: str | Path, sensor: tuple[int, int]) -> str:
+    """The format a ``path``'s suffix picks, once it is known to hold a ``sensor`` = (height,
+    width): what :func:`write_recording` refuses for the suffix and the sensor alone, said
+    before any events are made (ValueError for an unknown suffix, RecordingError otherwise)."""
     path = Path(path)
     name = WRITE_SUFFIXES.get(path.suffix.lower())
     if name is None:
@@ -220,9 +219,24 @@ def write_recording(path: str | Path, events: np.ndarray, sensor: tuple[int, int
             f"{path}: cannot write {path.suffix or 'no suffix'}; writable: "
             + ", ".join(f"{s} ({n})" for s, n in WRITE_SUFFIXES.items())
         )
+    bounded_sensor(path, name, (int(sensor[0]), int(sensor[1])), FORMATS[name].max_side)
+    if name == "AEDAT 2.0":
+        try:
+            jaer.aedat2_chip_for(path, sensor)
+        except ValueError as error:
+            raise RecordingError(path, name, str(error).removeprefix(f"{path}: ")) from None
+    return name
+
+
+def write_recording(path: str | Path, events: np.ndarray, sensor: tuple[int, int]) -> Path:
+    """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) into a file whose suffix picks the
+    format: ``.raw`` EVT 3.0, ``.aedat4`` AEDAT 4, ``.aedat`` AEDAT 2.0, ``.npz``. A sensor
+    beyond the format's side, a value beyond its field (a float time, p 2) or events off the
+    sensor are refused here, before the format's writer runs."""
+    path = Path(path)
+    name = check_writable(path, sensor)
     fmt = FORMATS[name]
     height, width = int(sensor[0]), int(sensor[1])
-    bounded_sensor(path, name, (height, width), fmt.max_side)
     try:  # a float time or an x beyond int16 is refused, never narrowed (wrapped)
         events = events_of(*(np.asarray(events[k]) for k in ("t", "x", "y", "p")))
     except UnfitValue as error:
