@@ -200,3 +200,20 @@ def test_events_to_save_in_a_format_too_small_for_the_sensor_are_refused_before_
         run(compose_config("task=event_camera", "task.save_events=.aedat", "task.height=480",
                            "task.width=640", "task.frames=6", f"out_dir={tmp_path / 'run'}"))  # fmt: skip
     assert not list((tmp_path / "run").glob("*_events*"))
+
+
+def test_the_backbone_check_leaves_the_runs_random_stream_as_it_was() -> None:
+    import torch
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from edr import CONF_DIR
+    from edr.representations import EDR
+    from edr.tasks.recognition import _check_backbone_takes
+
+    backbone = instantiate(OmegaConf.load(Path(CONF_DIR) / "backbone" / "lenet_ftrcn.yaml"))
+    torch.manual_seed(0)
+    expected = torch.rand(3)
+    torch.manual_seed(0)
+    _check_backbone_takes(backbone, EDR(color="gray"), 1, 8, 24)
+    assert torch.equal(torch.rand(3), expected)

@@ -374,8 +374,8 @@ def _check_backbone_takes(
     smaller than its convolutions and pooling need): one clip of zeros through a fresh one."""
     clip_frames = frames if representation.precompute else representation.out_frames(frames)
     in_channels = representation.out_channels(channels)
-    try:
-        with torch.no_grad():  # a backbone may probe its own sizes as it is built
+    try:  # on a fork of torch's generator: the run's own weights and clips stay as they were
+        with torch.random.fork_rng(), torch.no_grad():  # a backbone may probe its sizes as built
             network = backbone(in_channels=in_channels, num_classes=2, frames=clip_frames,
                                height=crop, width=crop)  # fmt: skip
             network.eval()(torch.zeros(1, clip_frames, in_channels, crop, crop))
