@@ -217,3 +217,22 @@ def test_the_backbone_check_leaves_the_runs_random_stream_as_it_was() -> None:
     torch.manual_seed(0)
     _check_backbone_takes(backbone, EDR(color="gray"), 1, 8, 24)
     assert torch.equal(torch.rand(3), expected)
+
+
+def test_a_stale_lock_whose_pid_now_runs_another_process_is_taken_over(tmp_path) -> None:
+    """issue 57: a lock left by a dead run whose pid the system gave to another process (here:
+    this test's own, a live process that never took the lock) was never taken over."""
+    import socket
+
+    from edr.store.folders import LOCK, hold_folder, holder_alive, process_identity
+
+    if process_identity(os.getpid()) is None:
+        pytest.skip("the system does not say when a process started (no /proc)")
+    stale = {"host": socket.gethostname(), "pid": os.getpid(), "since": "yesterday",
+             "process": "another-boot:12345"}  # fmt: skip
+    (tmp_path / LOCK).write_text(json.dumps(stale))
+    assert not holder_alive(tmp_path)
+    with hold_folder(tmp_path):
+        assert json.loads((tmp_path / LOCK).read_text())["process"] == process_identity(os.getpid())
+        assert holder_alive(tmp_path)  # the live holder is the holder
+    assert not (tmp_path / LOCK).exists()

@@ -165,20 +165,36 @@ def _holder(lock: Path) -> dict[str, Any] | None:
         return None  # gone, or half-written by a process that died while writing it
 
 
+def process_identity(pid: int) -> str | None:
+    """What tells process ``pid`` from a later one that reuses its number: this boot's id and
+    the process's start time (Linux's /proc); None where the system does not say."""
+    try:
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = stat.rsplit(")", 1)[-1].split()  # after the command's name, which may hold spaces
+    return f"{boot}:{fields[19]}" if len(fields) > 19 else None  # field 22: starttime
+
+
 def holder_alive(out_dir: Path) -> bool:
-    """Whether a live process holds ``out_dir`` (on another host: assumed alive)."""
+    """Whether a live process holds ``out_dir`` (on another host: assumed alive): its pid runs,
+    and, where the lock names it, is still the process that took the lock (a pid the system
+    gave to another process since is no holder)."""
     holder = _holder(Path(out_dir) / LOCK)
     if holder is None:
         return False
     if holder.get("host") != socket.gethostname():
         return True
     try:
-        os.kill(int(holder.get("pid", -1)), 0)
+        pid = int(holder.get("pid", -1))
+        os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except (PermissionError, ValueError, OverflowError):
+    except (PermissionError, ValueError, OverflowError, TypeError):
         return True
-    return True
+    started = holder.get("process")
+    return started is None or process_identity(pid) in (None, started)
 
 
 @contextmanager
@@ -186,7 +202,8 @@ def hold_folder(out_dir: Path) -> Iterator[None]:
     """Hold ``out_dir`` for this process while the body runs: one writer per run folder. A lock
     left by a process that died is taken over; a live holder is :class:`FolderHeld`."""
     lock = Path(out_dir) / LOCK
-    me = {"host": socket.gethostname(), "pid": os.getpid(), "since": now()}
+    me = {"host": socket.gethostname(), "pid": os.getpid(), "since": now(),
+          "process": process_identity(os.getpid())}  # fmt: skip
     for _ in range(2):
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
