@@ -236,3 +236,20 @@ def test_a_stale_lock_whose_pid_now_runs_another_process_is_taken_over(tmp_path)
         assert json.loads((tmp_path / LOCK).read_text())["process"] == process_identity(os.getpid())
         assert holder_alive(tmp_path)  # the live holder is the holder
     assert not (tmp_path / LOCK).exists()
+
+
+def test_two_sweeps_in_one_folder_count_their_own_cells(tmp_path, monkeypatch) -> None:
+    """issue 57: two sweeps writing one folder at once each reported '4 ran' for its 2 cells."""
+    import time as clock
+
+    from edr.store.folders import SWEEP_ID, log_attempt, outcomes_since
+
+    start = clock.time()
+    for sweep, cells in (("first", ("a", "b")), ("second", ("c", "d"))):
+        monkeypatch.setenv(SWEEP_ID, sweep)
+        for cell in cells:
+            (tmp_path / cell).mkdir()
+            log_attempt(tmp_path / cell, "ran", "f")
+    assert outcomes_since(tmp_path, start, "first") == {"ran": 2}
+    assert outcomes_since(tmp_path, start, "second") == {"ran": 2}
+    assert outcomes_since(tmp_path, start) == {"ran": 4}  # no sweep named: every cell

@@ -54,6 +54,7 @@ LEARNING = ("table1_pong", "table1_pong_5m", "table1_centipede", "learnable_edr"
 COMMITTED_SCOPE = (*(Path("results/learning", name) for name in LEARNING),
                    Path("results/sweeps/tiny/table2"), Path("results/sweeps/tiny/demo"))  # fmt: skip
 PAPER = Path("paper")
+BENCH_DEFAULT = Path("results/bench")
 Bench = tuple[Path, dict[str, Any]]
 
 
@@ -177,16 +178,16 @@ def main(argv: list[str] | None = None) -> None:
         action="append",
         help="a folder of run records (repeatable; default: the committed scope, into paper/)",
     )
-    parser.add_argument(
-        "--bench", type=Path, default=Path("results/bench"), help="edr-bench records"
-    )
+    parser.add_argument("--bench", type=Path, default=BENCH_DEFAULT, help="edr-bench records")
     parser.add_argument(
         "--out", type=Path, help="where tables go (default, for the committed scope: paper/)"
     )
     parser.add_argument("--published", type=Path, default=PUBLISHED, help="published numbers")
     args = parser.parse_args(argv)
     try:
-        runs, out_dir, published = _scope(args.runs, args.out, args.published, args.bench)
+        runs, out_dir, published = _scope(
+            args.runs, args.out, args.published, args.bench, args.bench != BENCH_DEFAULT
+        )
     except (Refused, BadPublished) as error:
         print(f"edr-tables: {error}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -209,8 +210,9 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _scope(
-    roots: list[Path] | None, out: Path | None, published_path: Path, bench_dir: Path
-) -> tuple[pd.DataFrame, Path, dict[str, Any]]:
+    roots: list[Path] | None, out: Path | None, published_path: Path, bench_dir: Path,
+    bench_named: bool = False,
+) -> tuple[pd.DataFrame, Path, dict[str, Any]]:  # fmt: skip
     """(the records, the output folder, the published numbers) edr-tables renders; each way it
     refuses, :class:`Refused` in one line."""
     if roots and out is None:
@@ -223,11 +225,16 @@ def _scope(
             f"--out {out}: paper/ holds the committed scope only, rendered by edr-tables with no "
             "--runs; write your runs' tables into another folder"
         )
+    empty = []
     for root in roots or ():
         if not root.is_dir():
             raise Refused(f"--runs {root}: no such folder")
         if next(root.rglob("run.json"), None) is None:
-            raise Refused(f"no records found under {root} (--runs: it holds no run.json)")
+            empty.append(root)
+    # a --runs folder without a record is a typo or a mistake, beside others that hold some, or
+    # alone unless --bench was named: the bench tables alone are what was asked for then
+    if empty and (len(empty) < len(roots or ()) or not bench_named):
+        raise Refused(f"no records found under {empty[0]} (--runs: it holds no run.json)")
     published = load_published(published_path)
     if not roots:
         present = [p for p in COMMITTED_SCOPE if p.is_dir()]

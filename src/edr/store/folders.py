@@ -21,6 +21,7 @@ import os
 import socket
 import sys
 import time
+import uuid
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -47,6 +48,7 @@ from edr.store.identity import (
 from edr.store.records import RECORD_NAME, now, read_record
 
 ATTEMPTS = "attempts.jsonl"
+SWEEP_ID = "EDR_SWEEP_ID"  # the environment variable naming the sweep a run belongs to
 LOCK = "run.lock"  # held while a process writes the folder: {"host", "pid", "since"}
 Resume = Literal["auto", True, False]
 # Levels of names a run writes under its folder (.hydra/config.yaml, pretrain/checkpoint.pt),
@@ -232,12 +234,14 @@ def hold_folder(out_dir: Path) -> Iterator[None]:
 
 def log_attempt(out_dir: Path, outcome: str, fingerprint: str, **details: Any) -> None:
     """Append one line (time, outcome, fingerprint, details) to ``out_dir/attempts.jsonl``."""
+    sweep = os.environ.get(SWEEP_ID)  # the sweep this attempt belongs to, if a sweep ran it
     line = json.dumps(
         {
             "at": now(),
             "unix": time.time(),
             "outcome": outcome,
             "fingerprint": fingerprint,
+            **({"sweep": sweep} if sweep else {}),
             **details,
         }
     )
@@ -260,14 +264,16 @@ def _attempt(line: str) -> dict[str, Any] | None:
     return attempt if isinstance(attempt, dict) and {"unix", "outcome"} <= attempt.keys() else None
 
 
-def outcomes_since(sweep_dir: Path, since: float) -> Counter[str]:
-    """The last outcome of every job folder under ``sweep_dir`` attempted after ``since``."""
+def outcomes_since(sweep_dir: Path, since: float, sweep: str | None = None) -> Counter[str]:
+    """The last outcome of every job folder under ``sweep_dir`` attempted after ``since`` (by
+    the sweep ``sweep`` only, when given: another sweep sharing the folder counts its own)."""
     counts: Counter[str] = Counter()
     for file in sorted(Path(sweep_dir).glob(f"*/{ATTEMPTS}")):
         attempts = [a for line in file.read_text(errors="replace").splitlines()
                     if (a := _attempt(line)) is not None]  # fmt: skip
-        if attempts and attempts[-1]["unix"] >= since:
-            counts[attempts[-1]["outcome"]] += 1
+        mine = [a for a in attempts if sweep is None or a.get("sweep") == sweep]
+        if mine and mine[-1]["unix"] >= since:
+            counts[mine[-1]["outcome"]] += 1
     return counts
 
 
@@ -340,6 +346,9 @@ class SweepSummary(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self.started, self.sweep_dir = time.time(), Path(config.hydra.sweep.dir)
+        # the sweep's own id, which every job's attempt carries (launchers' workers and Slurm
+        # jobs inherit the environment): a second sweep in the same folder counts apart
+        self.sweep_id = os.environ[SWEEP_ID] = uuid.uuid4().hex[:12]
         SweepSummary.under_way = self
         warn_ignored(config, config.hydra.overrides.task)
         _run_each_folder_once(config)
@@ -358,7 +367,8 @@ class SweepSummary(Callback):
     def _say(self) -> bool:
         """Log the summary line (once); whether a cell failed or was refused."""
         SweepSummary.under_way = None
-        counts = outcomes_since(self.sweep_dir, self.started)
+        os.environ.pop(SWEEP_ID, None)  # later runs of this process belong to no sweep
+        counts = outcomes_since(self.sweep_dir, self.started, getattr(self, "sweep_id", None))
         counts["refused"] = len(refused_cells)
         order = ("skipped", "resumed", "ran", "failed", "interrupted", "refused")
         shown = [k for k in order if k != "refused" or counts[k]]
