@@ -30,6 +30,11 @@ SOURCE_WORDS = {
     "time: its first part trains, its last part tests (not the paper's protocol)",
     "generated, split in time": "generated data in the data set's layout, each video split in "
     "time (not the real data set, not the paper's protocol)",
+    "real clips, split by person": "real clips of the data set (a few videos), its persons dealt "
+    "into folds, a network per fold tested on the persons it never saw, every video tested once "
+    "(experiment=kth_person: KTH's boxing, running and walking; not the paper's protocol)",
+    "generated, split by person": "generated data in the data set's layout, split by person "
+    "into folds (not the real data set)",
     "mixed": "real and generated data mixed",
     "emulator": "the Atari emulator (ale-py)",
 }
