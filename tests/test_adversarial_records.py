@@ -295,8 +295,6 @@ def test_the_committed_scope_renders_into_paper_and_nothing_else(tmp_path, monke
         (["--runs", "{tmp}/runs"], "--runs needs --out"),
         (["--runs", "{tmp}/empty", "--out", "{tmp}/out"], "no records found under {tmp}/empty"),
         # issue 57: --out paper with --runs, a folder that is not there, one empty among good ones
-        (["--runs", "{tmp}/runs", "--out", "paper"], "--out paper: paper/ holds the committed"),
-        (["--runs", "{tmp}/runs", "--out", "{tmp}/paper/sub"], "paper/ holds the committed"),
         (["--runs", "{tmp}/nowhere", "--out", "{tmp}/out"], "--runs {tmp}/nowhere: no such folder"),
         (
             ["--runs", "{tmp}/runs", "--runs", "{tmp}/empty", "--out", "{tmp}/out"],
@@ -314,6 +312,22 @@ def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, monkeypatc
     assert exit_.value.code == 2 and message.format(tmp=tmp_path) in error
     assert error.count("\n") == 1 and not (tmp_path / "out").exists()
     assert not (tmp_path / "paper").exists()
+
+
+@pytest.mark.parametrize("out", ["paper", "paper/sub", "{tmp}/paper"])
+def test_your_runs_never_go_into_the_projects_paper_folder(out, tmp_path, monkeypatch, capsys):
+    """issue 57: `edr-tables --runs X --out paper` exited 0 and rewrote the committed tables."""
+    monkeypatch.chdir(tmp_path)
+    _write(tmp_path / "runs" / "good", _record())
+    (tmp_path / "paper").mkdir()
+    (tmp_path / "paper" / "README.md").write_text("the committed tables")
+    (tmp_path / "paper" / "table4_kth.md").write_text("committed")
+    with pytest.raises(SystemExit) as exit_:
+        tables.main(["--runs", str(tmp_path / "runs"), "--out", out.format(tmp=tmp_path)])
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and "paper/ holds the committed scope only" in error
+    assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == ["README.md", "table4_kth.md"]
+    assert (tmp_path / "paper" / "table4_kth.md").read_text() == "committed"
 
 
 def test_a_run_found_in_two_folders_says_which_record_the_tables_take(tmp_path) -> None:
@@ -604,3 +618,13 @@ def test_a_checkpoint_evaluation_of_a_malformed_record_is_one_line(text, message
     with pytest.raises(UnreadableRecord, match=message) as caught:
         evaluate_checkpoint(run_dir)
     assert "\n" not in str(caught.value)
+
+
+def test_a_finished_record_without_its_data_part_is_listed_as_unreadable(tmp_path) -> None:
+    """issue 57: such a record drew a figure of no panels, a matplotlib trace."""
+    record = _record()
+    record.pop("data", None)
+    _write(tmp_path / "runs" / "nodata", record)
+    _write(tmp_path / "runs" / "good", _record(fingerprint="other"))
+    printed = _render(tmp_path / "runs", tmp_path / "out")
+    assert "nodata/run.json: finished, but without its data part" in printed

@@ -137,7 +137,8 @@ def test_table3_event_camera(paper) -> None:
     rows = {r[1]: r for r in _rows(text)}
     assert set(rows) == {"frames", "edr_soft", "edr_hard", "dvs"}
     header = _header(text)
-    assert all(r[header.index("Runs")] == "2" for r in rows.values())
+    # each seed draws its own scene here; repeats that give the same numbers say so instead
+    assert all(r[header.index("Runs")] in ("2", "2, identical") for r in rows.values())
     sparsity = {name: float(r[header.index("Sparsity")].split(" ")[0]) for name, r in rows.items()}
     assert sparsity["frames"] < 0.5 < sparsity["edr_hard"] and sparsity["dvs"] > 0.5
     assert "## The paper's numbers" in text and "DVS128" in text and "4 Mbps" in text

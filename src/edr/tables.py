@@ -220,7 +220,7 @@ def _scope(
             "--runs needs --out: paper/ holds the committed scope only (edr-tables with no "
             "--runs renders it)"
         )
-    if roots and out is not None and _inside(out, PAPER):
+    if roots and out is not None and _inside(out, PAPER) and (PAPER / "README.md").is_file():
         raise Refused(
             f"--out {out}: paper/ holds the committed scope only, rendered by edr-tables with no "
             "--runs; write your runs' tables into another folder"
@@ -253,7 +253,9 @@ def _scope(
 
 
 def _inside(path: Path, folder: Path) -> bool:
-    """Whether ``path`` is ``folder`` or lies in it, however either is spelled."""
+    """Whether ``path`` is ``folder`` or lies in it, however either is spelled. (Where ``folder``
+    is paper/, the caller also asks whether it is the project's: a README beside its tables; a
+    folder of that name elsewhere is the user's.)"""
     path, folder = path.resolve(), folder.resolve()
     return path == folder or folder in path.parents
 

@@ -105,7 +105,7 @@ def table3_event_camera(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         pd.DataFrame(rows).drop_duplicates(subset=[c for c in rows[0] if c != "Runs"])
         if rows
         else pd.DataFrame(rows),
-        done.assign(scale="whole clip"),
+        done.assign(scale=done["scale"].replace("full", "whole clip")),  # none is a protocol
         notes=[
             "Runs: repeats of a clip with other seeds; 'identical': they gave the same numbers "
             "(the event counts are deterministic), so they are one measurement, not a spread.",

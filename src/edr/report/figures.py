@@ -117,6 +117,8 @@ def _curve_panels(
 ) -> plt.Figure | None:
     """One panel per value of ``panel`` (a data set, a backbone), curves per cell in each."""
     panels = sorted(runs[panel].dropna().unique())
+    if not panels:  # records that lack what the panels are by (no data part): listed, not drawn
+        return None
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.5), squeeze=False)
     styles = label_styles([runs[runs[panel] == p] for p in panels], labels)
     drawn = [

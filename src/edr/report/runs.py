@@ -204,6 +204,8 @@ def _read(path: Path) -> dict[str, Any]:
     """The table row of the record at ``path``; a row saying why for one that cannot be used."""
     try:
         record = check_record(read_json(path))
+        if record.get("status") == "finished" and not isinstance(record.get("data"), dict):
+            raise BadRecord("finished, but without its data part: no table can say what it ran on")
         _check_files(path.parent, record)
         return _row(path, record)
     except BadRecord as error:
