@@ -15,6 +15,7 @@ from edr.data.events import RecordingError, read_recording, write_recording
 from edr.data.events.jaer import write_aedat2
 from edr.representations.dvs import EVENT_DTYPE
 from edr.tasks.dvs_transfer import _event_clip, dvs_transfer
+from event_files import npz_recording
 
 CLASSES = ("boxing", "walking")
 
@@ -26,13 +27,6 @@ def _events(t, x=None, y=None, p=None) -> np.ndarray:
     events["y"] = y if y is not None else 2
     events["p"] = p if p is not None else 1
     return events
-
-
-def _npz(path: Path, **arrays) -> Path:
-    columns = {"t": [0, 10], "x": [1, 2], "y": [3, 4], "p": [0, 1], **arrays}
-    with path.open("wb") as f:
-        np.savez(f, **{k: np.asarray(v) for k, v in columns.items()})
-    return path
 
 
 def _truncated(path: Path) -> Path:
@@ -49,16 +43,22 @@ def _header_only_davis346(path: Path) -> Path:
 
 BAD_FILES = {
     "header-only DAVIS346 .aedat": (_header_only_davis346, "no events"),
-    "empty .npz": (lambda p: _npz(p.with_suffix(".npz"), t=[], x=[], y=[], p=[]), "no events"),
-    "negative timestamp": (lambda p: _npz(p.with_suffix(".npz"), t=[-5, 10]), "negative"),
-    "negative x": (lambda p: _npz(p.with_suffix(".npz"), x=[-1, 2]), r"x = -1 outside"),
+    "empty .npz": (
+        lambda p: npz_recording(p.with_suffix(".npz"), t=[], x=[], y=[], p=[]),
+        "no events",
+    ),
+    "negative timestamp": (lambda p: npz_recording(p.with_suffix(".npz"), t=[-5, 10]), "negative"),
+    "negative x": (lambda p: npz_recording(p.with_suffix(".npz"), x=[-1, 2]), r"x = -1 outside"),
     "x = y = 30000": (
-        lambda p: _npz(p.with_suffix(".npz"), x=[30000, 1], y=[30000, 1]),
+        lambda p: npz_recording(p.with_suffix(".npz"), x=[30000, 1], y=[30000, 1]),
         r"x = 30000 outside",
     ),
-    "x beyond int16": (lambda p: _npz(p.with_suffix(".npz"), x=[70000, 1]), "outside any sensor"),
+    "x beyond int16": (
+        lambda p: npz_recording(p.with_suffix(".npz"), x=[70000, 1]),
+        "outside any sensor",
+    ),
     "truncated .npz (BadZipFile)": (
-        lambda p: _truncated(_npz(p.with_suffix(".npz"))),
+        lambda p: _truncated(npz_recording(p.with_suffix(".npz"))),
         "not a readable .npz",
     ),
     "truncated .aedat": (lambda p: _truncated(write_aedat2(p, _events([1, 2, 3]))), "truncated"),
@@ -66,11 +66,11 @@ BAD_FILES = {
     "zero-byte file": (lambda p: (p.write_bytes(b""), p)[1], r"empty \(0 bytes\)"),
     "text renamed .aedat": (lambda p: (p.write_text("hello\n"), p)[1], "no known header"),
     "events outside a DVS128": (
-        lambda p: _npz(p.with_suffix(".npz"), x=[200, 1], sensor=[128, 128]),
+        lambda p: npz_recording(p.with_suffix(".npz"), x=[200, 1], sensor=[128, 128]),
         r"x = 200 outside its sensor \(width 128",
     ),
     "y outside a DVS128": (
-        lambda p: _npz(p.with_suffix(".npz"), y=[3, 128], sensor=[128, 128]),
+        lambda p: npz_recording(p.with_suffix(".npz"), y=[3, 128], sensor=[128, 128]),
         r"y = 128 outside its sensor \(height 128: y in 0\.\.127\)",
     ),
 }
@@ -123,11 +123,11 @@ def _pretrain_that_must_not_run(tmp_path: Path):
 
 
 DVS_ROOTS = {
-    "truncated .npz": lambda d: _truncated(_npz(d / "rec.npz")),
+    "truncated .npz": lambda d: _truncated(npz_recording(d / "rec.npz")),
     "truncated .aedat": lambda d: _truncated(write_aedat2(d / "rec.aedat", _events([1, 2, 3]))),
-    "negative x": lambda d: _npz(d / "rec.npz", x=[-3, 1]),
+    "negative x": lambda d: npz_recording(d / "rec.npz", x=[-3, 1]),
     "header-only .aedat": lambda d: _header_only_davis346(d / "rec.aedat"),
-    "empty .npz": lambda d: _npz(d / "rec.npz", t=[], x=[], y=[], p=[]),
+    "empty .npz": lambda d: npz_recording(d / "rec.npz", t=[], x=[], y=[], p=[]),
 }
 
 

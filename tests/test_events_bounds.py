@@ -23,6 +23,7 @@ from edr.data.events import (
     write_recording,
 )
 from edr.data.events.checks import EVENT_DTYPE
+from event_files import npz_recording
 
 T = 1_605_537_493_718_345  # a real AEDAT 4 camera's clock (DV: µs since 1970)
 WRAP = 1 << 24  # EVT 3.0's clock: 24 bits
@@ -142,13 +143,6 @@ def _written(path: Path, data: bytes) -> Path:
     return path
 
 
-def _npz(path: Path, **arrays) -> Path:
-    columns = {"t": [0, 10], "x": [1, 2], "y": [3, 4], "p": [0, 1], **arrays}
-    with path.open("wb") as f:
-        np.savez(f, **{k: np.asarray(v) for k, v in columns.items()})
-    return path
-
-
 def _dsec(path: Path, x: list[int]) -> Path:
     h5py = pytest.importorskip("h5py")
     with h5py.File(path, "w") as f:
@@ -167,15 +161,15 @@ BAD_VALUES = {  # a file whose values numpy would narrow silently: (file, its on
         "AEDAT 4: p = 255 is not a polarity",
     ),
     ".npz float seconds": (
-        lambda d: _npz(d / "rec.npz", t=[0.25, 0.5]),
+        lambda d: npz_recording(d / "rec.npz", t=[0.25, 0.5]),
         ".npz: t holds float64 values, not integers: timestamps are integer microseconds",
     ),
     ".npz x that int16 wraps to 3": (
-        lambda d: _npz(d / "rec.npz", x=[-65533, 2]),
+        lambda d: npz_recording(d / "rec.npz", x=[-65533, 2]),
         ".npz: x = -65533 outside any sensor (beyond int16)",
     ),
     ".npz p that int8 wraps to 0": (
-        lambda d: _npz(d / "rec.npz", p=[256, 1]),
+        lambda d: npz_recording(d / "rec.npz", p=[256, 1]),
         ".npz: p = 256 is not a polarity",
     ),
     "DSEC x beyond 16 bits": (
@@ -235,7 +229,7 @@ def _aedat4_of_width(path: Path, stated: bytes) -> Path:
 
 HUGE_SENSORS = {  # a header stating a sensor beyond its format's side: (file, its size, side)
     ".npz 100000 x 100000": (
-        lambda d: _npz(d / "rec.npz", sensor=[100_000, 100_000]),
+        lambda d: npz_recording(d / "rec.npz", sensor=[100_000, 100_000]),
         "100000x100000",
         16384,
     ),
@@ -277,9 +271,9 @@ def test_a_writer_takes_a_sensor_up_to_its_formats_side(tmp_path) -> None:
 
 
 def test_a_recording_stating_no_sensor_spans_up_to_16384(tmp_path) -> None:
-    path = _npz(tmp_path / "rec.npz", x=[5000, 16383])  # DAT's 14-bit x reaches this
+    path = npz_recording(tmp_path / "rec.npz", x=[5000, 16383])  # DAT's 14-bit x reaches this
     assert read_recording(path)["x"].tolist() == [5000, 16383]
-    path = _npz(tmp_path / "far.npz", x=[5000, 16384])
+    path = npz_recording(tmp_path / "far.npz", x=[5000, 16384])
     with pytest.raises(RecordingError, match=r"x = 16384 outside the largest sensor read"):
         read_recording(path)
 
