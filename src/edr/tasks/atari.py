@@ -14,6 +14,7 @@ each is 4 emulator frames.
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import time
 from collections import deque
@@ -205,13 +206,18 @@ def _precision(
     choice = network.precision
     if choice == "auto" and state is not None and "precision" in state:
         choice = state["precision"]
-    noise = torch.Generator().manual_seed(0)  # the run's own random streams stay untouched
-    frames = [torch.rand(batch, *observation, generator=noise).contiguous(
-        memory_format=torch.channels_last) for _ in range(frame_stack)]  # fmt: skip
-    zeros, starts = torch.zeros(batch, net.state_size), torch.zeros(batch, 1, dtype=torch.bool)
-    probe = copy.deepcopy(net)  # timed on a copy: the net's running statistics stay its own
+
+    @functools.cache  # made once, and only if choose_precision times (auto on a bf16 CPU)
+    def timed_inputs() -> tuple[PAACNetwork, list[torch.Tensor], torch.Tensor, torch.Tensor]:
+        noise = torch.Generator().manual_seed(0)  # the run's own random streams stay untouched
+        frames = [torch.rand(batch, *observation, generator=noise).contiguous(
+            memory_format=torch.channels_last) for _ in range(frame_stack)]  # fmt: skip
+        starts = torch.zeros(batch, 1, dtype=torch.bool)
+        # timed on a copy: the net's running statistics stay its own
+        return copy.deepcopy(net), frames, torch.zeros(batch, net.state_size), starts
 
     def update(precision: Precision) -> None:
+        probe, frames, zeros, starts = timed_inputs()
         probe.precision = precision
         logits, value, _, _ = probe(frames, zeros, zeros, starts)
         (logits.sum() + value.sum()).backward()
