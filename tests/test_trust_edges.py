@@ -173,7 +173,7 @@ def test_a_slurm_sweep_without_a_cluster_is_one_line(cli, tmp_path) -> None:
         "debug=tiny",
         f"hydra.sweep.dir={tmp_path}/s",
     )
-    result = cli("edr-run", *sweep, cwd=tmp_path, env={"PATH": f"{python_only}:/bin"})
+    result = cli("edr-run", *sweep, cwd=tmp_path, env={"PATH": python_only})
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
     assert "hydra/launcher=slurm: no srun, sbatch, sinfo on the PATH" in result.stderr
     fake = tmp_path / "bin"  # a cluster whose controller is down
@@ -182,7 +182,7 @@ def test_a_slurm_sweep_without_a_cluster_is_one_line(cli, tmp_path) -> None:
                        "sinfo": "echo 'slurm_load_partitions: Unable to contact slurm controller' >&2; exit 1"}.items():  # fmt: skip
         (fake / tool).write_text(f"#!/bin/sh\n{body}\n")
         (fake / tool).chmod(0o755)
-    result = cli("edr-run", *sweep, cwd=tmp_path, env={"PATH": f"{fake}:{python_only}:/bin"})
+    result = cli("edr-run", *sweep, cwd=tmp_path, env={"PATH": f"{fake}:{python_only}"})
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
     assert (
         "sinfo failed (slurm_load_partitions: Unable to contact slurm controller)" in result.stderr
