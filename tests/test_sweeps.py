@@ -87,6 +87,31 @@ def test_ctrl_c_or_sigterm_ends_with_one_line_saying_how_to_resume(sent, status,
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("group", [True, False], ids=["ctrl-c", "sigterm-to-the-sweep"])
+def test_a_stopped_parallel_sweep_writes_every_jobs_record(group, tmp_path) -> None:
+    """issue 57: joblib killed its workers on Ctrl-C, leaving records ``running`` and the summary
+    short. Ctrl-C reaches every process of the group; a SIGTERM to the sweep only the sweep's."""
+    sweep = tmp_path / "sweep"
+    process = _start(*SWEEP[:3], "representation=edr,fdr,graydiff", *SWEEP[4:],
+                     "hydra/launcher=parallel", f"hydra.sweep.dir={sweep}", cwd=tmp_path)  # fmt: skip
+    for cell in (FIRST, SECOND):  # the two jobs under way; graydiff's waits for a free worker
+        _wait_for(sweep / cell / "checkpoint.pt", process)
+    if group:
+        os.killpg(process.pid, signal.SIGINT)
+    else:
+        process.send_signal(signal.SIGTERM)
+    output = process.communicate(timeout=120)[0]
+    assert process.returncode == (130 if group else 143), output[-3000:]
+    assert "Traceback" not in output
+    assert f"sweep {sweep}: 0 skipped, 0 resumed, 0 ran, 0 failed, 2 interrupted" in output
+    for cell in (FIRST, SECOND):
+        record = json.loads((sweep / cell / "run.json").read_text())
+        assert record["status"] == "failed" and record["error"] == "interrupted"
+        assert json.loads((sweep / cell / "attempts.jsonl").read_text())["outcome"] == "interrupted"
+    assert len(list(sweep.glob("*/run.json"))) == 2  # the third cell did not start
+
+
+@pytest.mark.slow
 def test_two_parallel_joblib_jobs_write_complete_records(cli, tmp_path) -> None:
     """No hydra.sweep.dir: the default folder resolves under joblib's launcher too."""
     result = cli(

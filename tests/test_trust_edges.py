@@ -253,3 +253,25 @@ def test_two_sweeps_in_one_folder_count_their_own_cells(tmp_path, monkeypatch) -
     assert outcomes_since(tmp_path, start, "first") == {"ran": 2}
     assert outcomes_since(tmp_path, start, "second") == {"ran": 2}
     assert outcomes_since(tmp_path, start) == {"ran": 4}  # no sweep named: every cell
+
+
+def test_a_signal_while_the_finished_record_is_written_waits_for_it(
+    compose_config, tmp_path, monkeypatch
+) -> None:
+    """issue 57: Ctrl-C during a run's last write left its record ``running`` and no attempt line;
+    the record and the line are written, then the interrupt stops what comes next."""
+    import edr.run as edr_run
+
+    def write_then_signal(out_dir: Path, record: dict) -> Path:
+        if record["status"] == "finished":
+            os.kill(os.getpid(), signal.SIGINT)  # lands as the record is written
+        return write_record(out_dir, record)
+
+    write_record = edr_run.write_record
+    monkeypatch.setattr(edr_run, "write_record", write_then_signal)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        edr_run.run(compose_config("task=kth", "debug=tiny", f"task.cache_dir={tmp_path / 'cache'}",
+                                   f"out_dir={out}"))  # fmt: skip
+    assert json.loads((out / "run.json").read_text())["status"] == "finished"
+    assert json.loads((out / "attempts.jsonl").read_text())["outcome"] == "ran"

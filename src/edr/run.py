@@ -177,11 +177,12 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         if interrupted:  # what the next attempt continues from (None: it starts over)
             record["resumes_from"] = progress(out_dir)
             _say_where_it_resumes(out_dir, record["resumes_from"])
-        unwritten = write_last_record(out_dir, record)
-        if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
-            log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
-        with contextlib.suppress(OSError):
-            log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
+        with interrupts.deferred():  # a second Ctrl-C does not cut the record short
+            unwritten = write_last_record(out_dir, record)
+            if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
+                log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
+            with contextlib.suppress(OSError):
+                log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
         raise
 
     # ---- the finished record -----------------------------------------------------------------
@@ -193,9 +194,10 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         wall_time_s=round(time.perf_counter() - started, 3),
         ended_at=now(),
     )
-    write_record(out_dir, record)
-    log_attempt(out_dir, "resumed" if plan.action == "resume" else "ran", fingerprint)
-    log.info("%s", summary_line(record, out_dir))
+    with interrupts.deferred():  # a signal now stops what comes next, once this run is written
+        write_record(out_dir, record)
+        log_attempt(out_dir, "resumed" if plan.action == "resume" else "ran", fingerprint)
+        log.info("%s", summary_line(record, out_dir))
     return record["metrics"]
 
 

@@ -10,7 +10,10 @@ second Ctrl-C must not cut that short with a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import threading
+from collections.abc import Callable, Iterator
 from types import FrameType
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -57,3 +60,32 @@ def ignore_stop_signals() -> None:
     the job); a worker that died of it would turn the parent's orderly stop into a failure."""
     for signum in STOP_SIGNALS:
         signal.signal(signum, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def deferred(on_signal: Callable[[int], None] | None = None) -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block ends, then raise the first one's interrupt (none
+    when the process was already stopping): for writes a signal must not cut in half (a run's
+    finished record and its attempt line), or a parent that lets its workers stop themselves
+    (``on_signal`` tells them, once). Off the main thread, where no handler can be set, the
+    block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        if not came:
+            came.append(signum)
+            if on_signal is not None:
+                on_signal(signum)
+
+    previous = {signum: signal.signal(signum, hold) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if came and _State.first is None:
+        _State.first = came[0]
+        raise _interrupt(came[0])

@@ -1,0 +1,1 @@
+"""edr's Hydra launchers (Hydra finds plugins only under ``hydra_plugins``)."""
