@@ -172,6 +172,7 @@ BAD_PUBLISHED = {
         "table4_kth:\n  accuracy:\n    lenet_ftrcn: {edr: '88.9'}\n", "'88.9', not a number"),
     "a section that is a list": ("table2_ucf101: [1, 2]\n", "table2_ucf101 is a list"),
     "notes not strings": ("table1_atari:\n  notes: [1]\n", "notes is not a list of strings"),
+    "EDR rows not settings": ("edr_rows:\n  settings: {edr: 3.8}\n", "edr_rows.settings is not"),
 }  # fmt: skip
 
 

@@ -100,7 +100,8 @@ def test_table2_ucf101_with_the_speed_column(paper) -> None:
     assert set(rows) == {"edr", "fdr", "graydiff"}
     assert rows["edr"][header.index("Published (fps)")] == "9,800.0"
     assert rows["edr"][header.index("Speed (fps)")] != "—"
-    assert rows["edr"][header.index("Published (%)")] == "—"  # generated data: no paper number
+    # the paper's LTC number beside our LTC row, though ours ran on generated data (notes say so)
+    assert rows["edr"][header.index("Published (%)")] == "70.7"
     assert "EDR K=1 / GrayDiff" in text and "EDR K=1 / TV-L1" in text
     (record,) = (paper.parent / "bench").glob("speed_*.json")
     names = {row["name"] for row in json.loads(record.read_text())["rows"]}
@@ -318,17 +319,20 @@ def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
 
 def test_the_sentence_on_figure_5as_speedup_follows_the_runs_spread() -> None:
     from edr.report.atari import faster_verdict
+    from edr.report.published import load_published
 
     m = 1_000_000
+    paper = load_published()["figure5_atari"]["pong_env_steps_to_18"]
     fdr = {0.0: [1 * m, 2 * m, 3 * m], 18.0: [None, 4 * m, 5 * m]}
     apart = {0.0: [int(0.5 * m), int(0.6 * m), int(0.7 * m)], 18.0: [None, None, None]}
-    said = faster_verdict(fdr, apart)
+    said = faster_verdict(fdr, apart, paper)
+    assert said.startswith("Figure 5a's \"1.7x faster\" (Pong's score 18 at 3M env steps with ")
     assert ": supported (judged at 0, the highest score every run reached)" in said
     assert "FDR+EDR took 0.50 - 0.70M" in said and "3.3x by the means" in said
-    assert ": contradicted" in faster_verdict(apart, fdr)
+    assert ": contradicted" in faster_verdict(apart, fdr, paper)
     overlapping = {0.0: [int(1.5 * m), int(2.5 * m), 3 * m], 18.0: [m, m, m]}
-    assert ": undecided at this spread" in faster_verdict(fdr, overlapping)
-    assert "undecided: no score" in faster_verdict({0.0: [None]}, {0.0: [m]})
+    assert ": undecided at this spread" in faster_verdict(fdr, overlapping, paper)
+    assert "undecided: no score" in faster_verdict({0.0: [None]}, {0.0: [m]}, paper)
 
 
 def test_a_caption_names_the_revisions_with_uncommitted_changes() -> None:

@@ -117,7 +117,7 @@ def render_runs(
         table3_event_camera(runs, published),
         table4_kth(runs, published),
         appendix_a_dvs(runs, published),
-        ablation_edr(runs),
+        ablation_edr(runs, published),
     ]
     for table in tables:
         written[table.name] = write_table(table, out_dir, published) if table.has_content else []
@@ -161,7 +161,7 @@ def render_runs(
         ),
     }
     for name, (title, (figure_runs, draw)) in figures.items():
-        written[name] = write_figure(name, title, figure_runs, draw, out_dir)
+        written[name] = write_figure(name, title, figure_runs, draw, out_dir, published)
     written["figure3b_pixel_response"] = copy_pixel_response(runs, out_dir)
     return written
 

@@ -17,8 +17,9 @@ import numpy as np
 import pandas as pd
 
 from edr.report.atari import atari_runs, normalised_scores
+from edr.report.published import cite, lookup
 from edr.report.recognition import labelled, learnable_runs, without_ablations
-from edr.report.render import provenance
+from edr.report.render import paper_heading, provenance
 from edr.report.runs import (
     CELL_KEYS,
     CONFUSION,
@@ -349,11 +350,58 @@ def atari_performance_profile(
     return done, lambda: _profile(done, published)
 
 
+def _fig5_paper(runs: pd.DataFrame, published: dict[str, Any]) -> list[str]:
+    """The paper's numbers for the games Figure 5 draws (Pong's steps to 18, Centipede's
+    rewards), with their source and inconsistencies; none for a game it does not draw."""
+    figure = published.get("figure5_atari") or {}
+    games = set(runs["game"].dropna()) if "game" in runs else set()
+    steps = figure.get("pong_env_steps_to_18") or {}
+    best = figure.get("centipede_best_reward") or {}
+    lines = []
+    if "Pong" in games and steps.get("fdr") and steps.get("fdr_edr"):
+        lines.append(
+            f"Pong (Figure 5a): a training score of 18 after {steps['fdr_edr'] / 1e6:g}M env "
+            f"steps with FDR+EDR, {steps['fdr'] / 1e6:g}M with FDR "
+            f"({steps['fdr'] / steps['fdr_edr']:.1f}x faster)."
+        )
+    if "Centipede" in games and (figure.get("centipede_reward_ratio") or best):
+        lines.append(
+            f"Centipede (Figure 5b): FDR+EDR's training reward "
+            f"{cite(figure.get('centipede_reward_ratio'), 'g')}x FDR's; later in training "
+            f"FDR+EDR reaches {cite(best.get('fdr_edr'), ',.0f')} while FDR struggles to reach "
+            f"{cite(best.get('fdr'), ',.0f')}."
+        )
+    if not lines:
+        return []
+    return [f"Source: {figure.get('source')}.", *lines, *(figure.get("notes") or [])]
+
+
+def _fig7b_paper(runs: pd.DataFrame, published: dict[str, Any]) -> list[str]:
+    """The paper's accuracy behind its Figure 7b (the matrix itself is given as a picture)."""
+    accuracy = lookup(published, "appendix_a_dvs", "finetuned_accuracy")
+    if accuracy is None:
+        return []
+    return [
+        f"Source: {lookup(published, 'appendix_a_dvs', 'source')}.",
+        f"Fine-tuned accuracy {cite(accuracy)} % on its DVS128 recordings of KTH clips (30 % "
+        "tested); the confusion matrix's cells are given as a picture only.",
+    ]
+
+
+# Per figure, the lines of the paper's numbers its caption shows (from its runs: the games drawn)
+PAPER_CAPTIONS: dict[str, Callable[[pd.DataFrame, dict[str, Any]], list[str]]] = {
+    "figure5_atari_curves": _fig5_paper,
+    "figure7b_dvs_confusion": _fig7b_paper,
+}
+
+
 def write_figure(
-    name: str, title: str, runs: pd.DataFrame, draw: Draw, out_dir: Path
-) -> list[Path]:
-    """``<out_dir>/figures/<name>.png`` and its caption ``<name>.md``; nothing if ``draw`` has no
-    data to show."""
+    name: str, title: str, runs: pd.DataFrame, draw: Draw, out_dir: Path,
+    published: dict[str, Any] | None = None,
+) -> list[Path]:  # fmt: skip
+    """``<out_dir>/figures/<name>.png`` and its caption ``<name>.md``, with the paper's numbers
+    for what it draws where the paper gives any (:data:`PAPER_CAPTIONS`); nothing if ``draw``
+    has no data to show."""
     if runs.empty:
         return []
     fig = draw()
@@ -361,12 +409,14 @@ def write_figure(
         return []
     png = out_dir / "figures" / f"{name}.png"
     save_figure(fig, png, dpi=110)
+    paper = PAPER_CAPTIONS.get(name, lambda _runs, _published: [])(runs, published or {})
     caption = [
         f"# {title}",
         "",
         f"![{title}]({png.name})",
         "",
         *provenance(runs),
+        *(paper_heading(published or {}, paper) if paper else []),
         "",
         "Records:",
         "",

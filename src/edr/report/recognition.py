@@ -3,12 +3,12 @@ ConvNet+RCN backbones), Appendix A (DVS transfer) and the EDR ablations."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import pandas as pd
 
-from edr.report.published import cite, lookup
+from edr.report.published import cite, lookup, paper_accuracy, paper_name
 from edr.report.render import Table, mean_std, uncommitted
 from edr.report.runs import cells, finished, placeable, unfinished
 from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
@@ -77,8 +77,8 @@ def labelled(done: pd.DataFrame) -> pd.DataFrame:
 SPLIT_IN_TIME_NOTE = (
     "Data 'real clips (N videos), split in time': the few real clips of ../shared/real-video "
     "(experiment=kth_real, ucf101_real), each video's first part for training and its last part "
-    "for testing, a clip's length apart: not the paper's protocol, so no published number "
-    "stands beside them; their accuracy is over test clips (several per video). "
+    "for testing, a clip's length apart: not the paper's protocol (the published number beside "
+    "them is the paper's on its own split); their accuracy is over test clips (several per video). "
     "'(frames shuffled)': each clip's frames in a random order, what appearance alone gives. "
     "'raw input': the representation reached the backbone as computed "
     "(task.normalize_input=false, as every record before 2026-12-03 ran); without it, each input "
@@ -86,10 +86,60 @@ SPLIT_IN_TIME_NOTE = (
 )
 
 
+PUBLISHED_NOTE = (
+    "Published: the paper's accuracy for the row's backbone and representation (Table 4: KTH; "
+    "Table 2: UCF-101 split 1 with LTC), on its data set under its protocol, beside every row of "
+    "that setting whatever data the row ran on: a reference, not the same measurement where the "
+    "Data column names other data. '—' where the paper reports none (another backbone or "
+    "representation, EDR with other settings, frames shuffled); see paper/published.yaml."
+)
+
+
+def _first_runs(grouped: pd.DataFrame, done: pd.DataFrame) -> list[pd.Series]:
+    """Per row of ``grouped`` (cells of ``done``), its first run: the settings its runs share."""
+    by_record = done.set_index("record")
+    by_record = by_record[~by_record.index.duplicated()]
+    return [by_record.loc[records[0]] for records in grouped["records"]]
+
+
+def _paper_name(run: pd.Series, published: dict[str, Any]) -> str | None:
+    """The name published.yaml gives a run's representation (None: an EDR of settings the paper
+    did not run), from its ``config.representation`` settings."""
+    prefix = "config.representation."
+    settings = {k.removeprefix(prefix): v for k, v in run.items() if k.startswith(prefix)}
+    return paper_name(published, str(run.get("choices.representation")), settings)
+
+
+def paper_names(
+    grouped: pd.DataFrame, done: pd.DataFrame, published: dict[str, Any]
+) -> list[str | None]:
+    """Per row of ``grouped`` (cells of ``done``), :func:`_paper_name` of its runs."""
+    return [_paper_name(run, published) for run in _first_runs(grouped, done)]
+
+
+def published_accuracy(
+    grouped: pd.DataFrame, done: pd.DataFrame, published: dict[str, Any]
+) -> list[str]:
+    """Per row of ``grouped`` (cells of ``done``), the paper's accuracy for its task, backbone
+    and representation as a table cell, whatever data the row ran on (:data:`PUBLISHED_NOTE`);
+    '—' where the paper has none, and beside frames shuffled (no setting of the paper's)."""
+    return [
+        cite(
+            None
+            if run.get("data.frame_order") == "shuffled"
+            else paper_accuracy(
+                published, run.get("task"), run.get("choices.backbone"), _paper_name(run, published)
+            )
+        )
+        for run in _first_runs(grouped, done)
+    ]
+
+
 def _accuracy_rows(
-    grouped: pd.DataFrame, columns: dict[str, str], published: Callable[[pd.Series], Any]
+    grouped: pd.DataFrame, columns: dict[str, str], published: list[str]
 ) -> pd.DataFrame:
-    """Display rows: the label ``columns`` (column -> heading), accuracy, runs, chance, published."""
+    """Display rows: the label ``columns`` (column -> heading), accuracy, runs, chance, and the
+    ``published`` cells (:func:`published_accuracy`)."""
     return pd.DataFrame(
         {
             **{heading: grouped[column] for column, heading in columns.items()},
@@ -104,7 +154,7 @@ def _accuracy_rows(
                 for n, s in zip(grouped["runs"], grouped["seeds"], strict=True)
             ],
             "Chance (%)": [f"{100 * c:.1f}" for c in grouped["metrics.eval/chance:mean"]],
-            "Published (%)": [cite(published(row)) for _, row in grouped.iterrows()],
+            "Published (%)": published,
             "Cell": grouped["cell"].str[:8],
         }
     )
@@ -126,17 +176,7 @@ def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
                 "data.label": "Data",
                 "scale": "Scale",
             },
-            lambda row: (
-                None
-                if row["data.source"] != "real"
-                else lookup(
-                    published,
-                    "table4_kth",
-                    "accuracy",
-                    row["choices.backbone"],
-                    row["choices.representation"],
-                )
-            ),
+            published_accuracy(grouped, done, published),
         )
     )
     return Table(
@@ -145,10 +185,10 @@ def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         frame,
         done,
         notes=[
-            "Accuracy: test videos, 10 crops, averaged softmax. Published: the paper's number, "
-            "shown only beside runs on the real KTH ('—' where not transcribed, see "
-            "paper/published.yaml). Cell: the config fingerprint without the seed; rows with the "
-            "same labels and another cell differ in some other setting.",
+            "Accuracy: test videos, 10 crops, averaged softmax. Cell: the config fingerprint "
+            "without the seed; rows with the same labels and another cell differ in some other "
+            "setting.",
+            PUBLISHED_NOTE,
             SPLIT_IN_TIME_NOTE,
         ],
         unfinished=unfinished(runs, "kth", unplaced),
@@ -186,11 +226,7 @@ def table2_ucf101(
                 "data.label": "Data",
                 "scale": "Scale",
             },
-            lambda row: (
-                None
-                if row["data.source"] != "real"
-                else lookup(published, "table2_ucf101", "accuracy", row["choices.representation"])
-            ),
+            published_accuracy(grouped, done, published),
         )
         bench_rows = speed["rows"] if speed else []
         ours = [
@@ -202,8 +238,8 @@ def table2_ucf101(
             6,
             "Published (fps)",
             [
-                cite(lookup(published, "speed", "fps", r), ",.1f")
-                for r in grouped["choices.representation"]
+                cite(lookup(published, "speed", "fps", name) if name else None, ",.1f")
+                for name in paper_names(grouped, done, published)
             ],
         )
     machine = speed["machine"] if speed else {}
@@ -227,7 +263,8 @@ def table2_ucf101(
         done,
         notes=[
             "Accuracy as in Table 4; speed from the newest `edr-bench` record (see "
-            "table2_speed.md for every timed row).",
+            "table2_speed.md for every timed row), beside the paper's for the representation.",
+            PUBLISHED_NOTE,
             SPLIT_IN_TIME_NOTE,
         ],
         unfinished=unfinished(runs, "ucf101", unplaced),
@@ -239,7 +276,9 @@ def table2_ucf101(
                     "Accuracy (%)": cite(acc),
                     "Speed (fps)": cite(lookup(published, "speed", "fps", rep), ",.1f"),
                 }
-                for rep, acc in (lookup(published, "table2_ucf101", "accuracy") or {}).items()
+                for rep, acc in (
+                    lookup(published, "table2_ucf101", "accuracy", "ltc") or {}
+                ).items()
             ]
         ),
         paper_notes=_paper_notes(published, "table2_ucf101") + _paper_notes(published, "speed"),
@@ -258,7 +297,6 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     grouped = cells(done, metrics, ["choices.backbone", "data.events"])
     frame = pd.DataFrame()
     if not grouped.empty:
-        real = grouped["data.source"] == "real"
         frame = pd.DataFrame(
             {
                 "Backbone": grouped["choices.backbone"],
@@ -277,10 +315,9 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
                     mean_std(grouped[f"{ACCURACY}:mean"][i], grouped[f"{ACCURACY}:std"][i], 100)
                     for i in grouped.index
                 ],
-                "Published fine-tuned (%)": [
-                    cite(lookup(published, "appendix_a_dvs", "finetuned_accuracy") if r else None)
-                    for r in real
-                ],
+                "Published fine-tuned (%)": cite(
+                    lookup(published, "appendix_a_dvs", "finetuned_accuracy")
+                ),
                 "Runs": grouped["runs"],
                 "Chance (%)": [f"{100 * c:.1f}" for c in grouped["metrics.eval/chance:mean"]],
             }
@@ -294,7 +331,11 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         notes=[
             "Pre-trained: the network's accuracy on its pre-training data (the Data column: "
             "generated data is not KTH). Fine-tuned on 70 % of the recordings per class, tested "
-            "on the other 30 %. Events: simulated by our DVS simulator unless recordings are named."
+            "on the other 30 %. Events: simulated by our DVS simulator unless recordings are named.",
+            "Published fine-tuned: the paper's, beside every row: its ConvNet+RCN pre-trained on "
+            "KTH, fine-tuned and tested on its DVS128 recordings of KTH clips shown on a screen "
+            "(a reference, not the same measurement where the Data and Events columns name "
+            "others).",
         ],
         unfinished=unfinished(runs, "dvs_transfer", unplaced),
         paper=pd.DataFrame(
@@ -318,7 +359,7 @@ def _setting(values: Sequence[Any]) -> str:
     return ", ".join(map(str, values)) if isinstance(values, list | tuple) else str(values)
 
 
-def ablation_edr(runs: pd.DataFrame) -> Table:
+def ablation_edr(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done = finished(runs, "kth", only_ablations)
     if not done.empty:  # learnable EDR has its own block, beside FDR
         done = done[~done["choices.ablation"].str.startswith("learnable")]
@@ -342,6 +383,7 @@ def ablation_edr(runs: pd.DataFrame) -> Table:
                     )
                 ],
                 "Runs": grouped["runs"],
+                "Published (%)": published_accuracy(grouped, done, published),
             }
         )
     learnable = learnable_runs(runs)
@@ -353,9 +395,10 @@ def ablation_edr(runs: pd.DataFrame) -> Table:
         pd.concat([done, learnable]).drop_duplicates("record"),
         notes=[
             "`paper`: the paper's EDR (half-life 3.8 frames, ratio, soft, nu 0.05, beta 1); "
-            "each other row changes what conf/ablation/<name>.yaml says."
+            "each other row changes what conf/ablation/<name>.yaml says.",
+            PUBLISHED_NOTE,
         ],
-        extra=_learnable_block(learnable),
+        extra=_learnable_block(learnable, published),
     )
 
 
@@ -397,7 +440,7 @@ def _learned_value(grouped: pd.Series, key: str, configured: Any) -> str:
     return f"{_setting(configured)} (fixed)" if configured is not None else "—"
 
 
-def _learnable_block(runs: pd.DataFrame) -> str:
+def _learnable_block(runs: pd.DataFrame, published: dict[str, Any]) -> str:
     """Markdown: accuracy, divergences and final values of fixed vs learnable EDR vs FDR."""
     if runs.empty:
         return ""
@@ -412,7 +455,8 @@ def _learnable_block(runs: pd.DataFrame) -> str:
     grouped = grouped.assign(order=grouped["choices.ablation"].map(order.index))
     grouped = grouped.sort_values(["data.source", "order"], kind="stable")  # one block per data
     rows = []
-    for _, g in grouped.iterrows():
+    paper = published_accuracy(grouped, runs, published)
+    for (_, g), paper_cell in zip(grouped.iterrows(), paper, strict=True):
         ablation = g["choices.ablation"]
         learned = {
             name: "—" if ablation == "fdr" else _learned_value(
@@ -429,6 +473,7 @@ def _learnable_block(runs: pd.DataFrame) -> str:
                 "Runs": g["runs"],
                 "Diverged": round(g["diverged:mean"] * g["runs"]),
                 **learned,
+                "Published (%)": paper_cell,
             }
         )
     return "\n".join(
@@ -440,7 +485,8 @@ def _learnable_block(runs: pd.DataFrame) -> str:
             "mean +- std over seeds. Diverged: runs whose training loss stopped being a number "
             "(recorded with the step, `train/diverged_step`; their accuracy is not averaged). "
             "FDR: the same backbone and budget on the frames. Per-epoch values and the EDR "
-            "layer's gradient norm: `figures/learnable_edr.png`.",
+            "layer's gradient norm: `figures/learnable_edr.png`. Published: as in the table "
+            "above (the paper ran no learnable EDR).",
             "",
             pd.DataFrame(rows).to_markdown(index=False),
             "",

@@ -60,11 +60,9 @@ class Table:
         return self.from_code or not self.runs.empty or not self.paper.empty
 
 
-def paper_block(table: Table, published: dict) -> list[str]:
-    """The paper's rows under their own heading: its data, scale and machine as it states them;
-    never averaged with ours."""
-    if table.paper.empty:
-        return []
+def paper_heading(published: dict, lines: list[str]) -> list[str]:
+    """Markdown: the heading of the paper's numbers, its data, scale and machine as it states
+    them, then ``lines`` (its source, its numbers, its inconsistencies), each a bullet."""
     stated = published.get("paper", {}) if published else {}
     return [
         "",
@@ -72,10 +70,16 @@ def paper_block(table: Table, published: dict) -> list[str]:
         "",
         f"- **Data**: {stated.get('data', 'as the paper states')}; **scale**: the paper's full "
         f"protocol; **machine**: {stated.get('machine', 'the authors’')}.",
-        *(f"- {n}" for n in table.paper_notes),
-        "",
-        table.paper.to_markdown(index=False),
+        *(f"- {line}" for line in lines),
     ]
+
+
+def paper_block(table: Table, published: dict) -> list[str]:
+    """The paper's rows under their own heading (:func:`paper_heading`); never averaged with
+    ours."""
+    if table.paper.empty:
+        return []
+    return [*paper_heading(published, table.paper_notes), "", table.paper.to_markdown(index=False)]
 
 
 def mean_std(mean: float, std: float, scale: float = 1.0, fmt: str = ".1f") -> str:
