@@ -315,10 +315,17 @@ def test_explicit_folders_refuse_in_one_line(args, message, tmp_path, monkeypatc
     assert not (tmp_path / "paper").exists()
 
 
-@pytest.mark.parametrize("out", ["paper", "paper/sub", "{tmp}/paper"])
-def test_your_runs_never_go_into_the_projects_paper_folder(out, tmp_path, monkeypatch, capsys):
-    """issue 57: `edr-tables --runs X --out paper` exited 0 and rewrote the committed tables."""
-    monkeypatch.chdir(tmp_path)
+@pytest.mark.parametrize(
+    ("out", "cwd"),
+    [("paper", "."), ("paper/sub", "."), ("{tmp}/paper", "."), ("{tmp}/paper", "elsewhere"),
+     ("../paper", "src")],
+)  # fmt: skip
+def test_your_runs_never_go_into_the_projects_paper_folder(out, cwd, tmp_path, monkeypatch, capsys):
+    """issue 57: `edr-tables --runs X --out paper` exited 0 and rewrote the committed tables; the
+    refusal held only when run from the project's own folder."""
+    (tmp_path / "src" / "edr").mkdir(parents=True)  # a checkout: paper/ beside the package
+    (tmp_path / cwd).mkdir(exist_ok=True)
+    monkeypatch.chdir(tmp_path / cwd)
     _write(tmp_path / "runs" / "good", _record())
     (tmp_path / "paper").mkdir()
     (tmp_path / "paper" / "README.md").write_text("the committed tables")
@@ -326,9 +333,35 @@ def test_your_runs_never_go_into_the_projects_paper_folder(out, tmp_path, monkey
     with pytest.raises(SystemExit) as exit_:
         tables.main(["--runs", str(tmp_path / "runs"), "--out", out.format(tmp=tmp_path)])
     error = capsys.readouterr().err
-    assert exit_.value.code == 2 and "paper/ holds the committed scope only" in error
+    assert exit_.value.code == 2 and "paper holds the committed scope only" in error
     assert sorted(p.name for p in (tmp_path / "paper").iterdir()) == ["README.md", "table4_kth.md"]
     assert (tmp_path / "paper" / "table4_kth.md").read_text() == "committed"
+
+
+def test_a_users_own_folder_named_paper_takes_the_tables(tmp_path, monkeypatch) -> None:
+    """Only the project's paper/ is guarded: a README there, but no package beside it."""
+    monkeypatch.chdir(tmp_path)
+    _write(tmp_path / "runs" / "good", _record())
+    (tmp_path / "paper").mkdir()
+    (tmp_path / "paper" / "README.md").write_text("my notes")
+    _render(tmp_path / "runs", tmp_path / "paper")
+    assert (tmp_path / "paper" / "table4_kth.md").is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [(["--out", ""], "--out: an empty path"), (["--published", "{tmp}"], "is not a file of published")],
+)  # fmt: skip
+def test_an_empty_out_or_a_folder_as_published_numbers_is_refused(args, message, tmp_path, capsys):
+    """issue 57, fresh battery: --out '' wrote every table into the current folder; --published
+    naming a folder rendered tables without the paper's numbers, without a word."""
+    _write(tmp_path / "runs" / "good", _record())
+    argv = ["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")]
+    with pytest.raises(SystemExit) as exit_:
+        tables.main([*argv, *(a.format(tmp=tmp_path) for a in args)])
+    error = capsys.readouterr().err
+    assert exit_.value.code == 2 and message in error, error
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_run_found_in_two_folders_says_which_record_the_tables_take(tmp_path) -> None:
@@ -629,3 +662,32 @@ def test_a_finished_record_without_its_data_part_is_listed_as_unreadable(tmp_pat
     _write(tmp_path / "runs" / "good", _record(fingerprint="other"))
     printed = _render(tmp_path / "runs", tmp_path / "out")
     assert "nodata/run.json: finished, but without its data part" in printed
+
+
+@pytest.mark.parametrize(
+    ("make", "reason"),
+    [
+        (lambda f: _write(f, _record(metrics={"eval/accuracy": "high"})), "not numbers"),
+        (lambda f: _write(f, None, text='{"status": "finished", "task": "kth", "metrics": '
+                                        '{"eval/accuracy": 1' + "0" * 400 + "}}"), "not numbers"),
+        (lambda f: (f.mkdir(parents=True), os.mkfifo(f / "run.json")), "named pipe"),
+    ],
+    ids=["text-accuracy", "int-past-float", "named-pipe"],
+)  # fmt: skip
+def test_records_a_table_cannot_use_are_listed_not_rendered_or_hung_on(make, reason, tmp_path):
+    """issue 57, fresh battery: a text accuracy rendered as '—' unlisted; an integer past float's
+    range was pandas' OverflowError; a named pipe called run.json hung edr-tables forever."""
+    _write(tmp_path / "runs" / "good", _record())
+    make(tmp_path / "runs" / "bad")
+    printed = _render(tmp_path / "runs", tmp_path / "out")
+    (line,) = [line for line in printed.splitlines() if "bad" in line and "run.json" in line]
+    assert reason in line
+    assert (tmp_path / "out" / "table4_kth.md").is_file()
+
+
+def test_a_finished_record_without_choices_is_not_placed_not_a_traceback(tmp_path) -> None:
+    """issue 57, fresh battery: `"choices": {}` was a KeyError in Table 4."""
+    _write(tmp_path / "runs" / "good", _record())
+    _write(tmp_path / "runs" / "bare", _record(seed=1, choices={}))
+    printed = _render(tmp_path / "runs", tmp_path / "out")
+    assert "lacks" in (tmp_path / "out" / "table4_kth.md").read_text() + printed

@@ -275,3 +275,40 @@ def test_a_signal_while_the_finished_record_is_written_waits_for_it(
                                    f"out_dir={out}"))  # fmt: skip
     assert json.loads((out / "run.json").read_text())["status"] == "finished"
     assert json.loads((out / "attempts.jsonl").read_text())["outcome"] == "ran"
+
+
+@pytest.mark.parametrize("kind", ["a file", "run.json a folder", "run.json a named pipe"])
+def test_edr_eval_on_a_path_that_holds_no_readable_record_is_one_line(kind, cli, tmp_path):
+    """issue 57, fresh battery: tracebacks (NotADirectoryError, IsADirectoryError) and, for a
+    named pipe, a hang."""
+    target = tmp_path / "run"
+    if kind == "a file":
+        target.write_text("x")
+    else:
+        target.mkdir()
+        (target / "run.json").mkdir() if "folder" in kind else os.mkfifo(target / "run.json")
+    result = cli("edr-eval", str(target), cwd=tmp_path)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "is not a readable run record" in result.stderr
+
+
+def test_a_run_folder_whose_record_is_a_folder_is_refused(compose_config, tmp_path) -> None:
+    """issue 57, fresh battery: the run went ahead and failed at its first record write."""
+    from edr.run import run
+    from edr.store.records import UnreadableRecord
+
+    out = tmp_path / "run"
+    (out / "run.json").mkdir(parents=True)
+    with pytest.raises(UnreadableRecord, match="a folder, not a file"):
+        run(compose_config("task=kth", "debug=tiny", f"task.cache_dir={tmp_path / 'cache'}",
+                           f"out_dir={out}"))  # fmt: skip
+
+
+@pytest.mark.parametrize("content", [b"not a checkpoint\n", bytes(range(256)) * 4])
+def test_a_checkpoint_of_any_damage_is_unreadable_not_a_traceback(content, tmp_path) -> None:
+    """issue 57, fresh battery: text gave pickle's UnpicklingError, random bytes an IndexError."""
+    from edr.store.checkpoints import UnreadableCheckpoint, load_checkpoint
+
+    (tmp_path / "checkpoint.pt").write_bytes(content)
+    with pytest.raises(UnreadableCheckpoint, match="cannot be read"):
+        load_checkpoint(tmp_path / "checkpoint.pt")

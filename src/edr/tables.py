@@ -62,6 +62,14 @@ class Refused(ValueError):
     """edr-tables asked for what it does not do; one line, before anything is written."""
 
 
+def _named_path(text: str) -> Path:
+    """A path option's value; an empty one (an unset shell variable) is refused, not read as
+    the current folder."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path (an unset variable?): name a folder")
+    return Path(text)
+
+
 def _bench_records(
     bench_dir: Path, kind: str, render: Callable[[Bench], str], skipped: list[str]
 ) -> list[tuple[Bench, str]]:
@@ -174,15 +182,19 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument(
         "--runs",
-        type=Path,
+        type=_named_path,
         action="append",
         help="a folder of run records (repeatable; default: the committed scope, into paper/)",
     )
-    parser.add_argument("--bench", type=Path, default=BENCH_DEFAULT, help="edr-bench records")
     parser.add_argument(
-        "--out", type=Path, help="where tables go (default, for the committed scope: paper/)"
+        "--bench", type=_named_path, default=BENCH_DEFAULT, help="edr-bench records"
     )
-    parser.add_argument("--published", type=Path, default=PUBLISHED, help="published numbers")
+    parser.add_argument(
+        "--out", type=_named_path, help="where tables go (default, for the committed scope: paper/)"
+    )
+    parser.add_argument(
+        "--published", type=_named_path, default=PUBLISHED, help="published numbers"
+    )
     args = parser.parse_args(argv)
     try:
         runs, out_dir, published = _scope(
@@ -220,10 +232,10 @@ def _scope(
             "--runs needs --out: paper/ holds the committed scope only (edr-tables with no "
             "--runs renders it)"
         )
-    if roots and out is not None and _inside(out, PAPER) and (PAPER / "README.md").is_file():
+    if roots and out is not None and (project_paper := _projects_paper(out)) is not None:
         raise Refused(
-            f"--out {out}: paper/ holds the committed scope only, rendered by edr-tables with no "
-            "--runs; write your runs' tables into another folder"
+            f"--out {out}: {project_paper} holds the committed scope only, rendered by edr-tables "
+            "with no --runs; write your runs' tables into another folder"
         )
     empty = []
     for root in roots or ():
@@ -252,12 +264,19 @@ def _scope(
     return runs, out or PAPER, published
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    """Whether ``path`` is ``folder`` or lies in it, however either is spelled. (Where ``folder``
-    is paper/, the caller also asks whether it is the project's: a README beside its tables; a
-    folder of that name elsewhere is the user's.)"""
-    path, folder = path.resolve(), folder.resolve()
-    return path == folder or folder in path.parents
+def _projects_paper(path: Path) -> Path | None:
+    """The paper/ of a checkout of this project that ``path`` is or lies in, from whatever
+    folder it is named (a paper/ with its README, beside the package's src/edr); None for a
+    folder of that name elsewhere, which is the user's."""
+    resolved = path.resolve()
+    for folder in (resolved, *resolved.parents):
+        if (
+            folder.name == PAPER.name
+            and (folder / "README.md").is_file()
+            and (folder.parent / "src" / "edr").is_dir()
+        ):
+            return folder
+    return None
 
 
 if __name__ == "__main__":

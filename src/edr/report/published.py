@@ -70,9 +70,11 @@ def check_published(published: Any, path: Path) -> dict[str, Any]:
 
 def load_published(path: Path = PUBLISHED) -> dict[str, Any]:
     """The published numbers; an absent file gives no published numbers at all, a file the
-    tables cannot read :class:`BadPublished`."""
-    if not path.is_file():
+    tables cannot read, or a path that is not a file, :class:`BadPublished`."""
+    if not path.exists():
         return {}
+    if not path.is_file():
+        raise BadPublished(f"{path} is not a file of published numbers (a YAML file)")
     try:
         published = yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as error:

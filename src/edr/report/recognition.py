@@ -63,7 +63,7 @@ def labelled(done: pd.DataFrame) -> pd.DataFrame:
          for r, s in zip(raw, shuffled, strict=True)],
         index=done.index,
     )  # fmt: skip
-    representation = done["choices.representation"].astype(str)
+    representation = done.get("choices.representation", missing).astype(str)
     return done.assign(
         **{
             "data.label": done.get("data.label", missing).fillna(done["data.source"]),

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,7 @@ import pandas as pd
 
 from edr.store.folders import holder_alive
 from edr.store.identity import flatten
-from edr.store.records import RECORD_NAME
+from edr.store.records import RECORD_NAME, regular_file_bytes
 
 # What must match for runs to be averaged into one number.
 CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]
@@ -67,12 +68,14 @@ def read_json(path: Path) -> Any:
     """The JSON in ``path``; :class:`BadRecord` naming the file for bytes that are not UTF-8,
     text that is not JSON, or JSON nested past Python's recursion limit."""
     try:
-        return json.loads(path.read_bytes().decode())
+        return json.loads(regular_file_bytes(path).decode())
     except UnicodeDecodeError:
         raise BadRecord(f"{path.name} is not UTF-8 text") from None
     except RecursionError:
         raise BadRecord(f"{path.name} is nested too deeply") from None
-    except (OSError, ValueError) as error:
+    except OSError as error:  # a folder, a pipe, a link loop
+        raise BadRecord(f"{path.name} cannot be read ({error.strerror})") from None
+    except ValueError as error:
         raise BadRecord(f"{path.name} is not JSON ({error})") from None
 
 
@@ -117,6 +120,8 @@ def check_record(record: Any) -> dict[str, Any]:
         nested = [k for k, v in record.get(key, {}).items() if not isinstance(v, Scalar)]
         if nested:
             raise BadRecord(f"`{key}` holds values that are not scalars: {nested}")
+    if wrong := _not_numbers(record.get("metrics", {})):
+        raise BadRecord(f"`metrics` holds values that are not numbers: {wrong}")
     seed = record.get("seed", record.get("config", {}).get("seed"))
     if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
         raise BadRecord(f"seed {seed!r} is not an integer")
@@ -126,6 +131,21 @@ def check_record(record: Any) -> dict[str, Any]:
 
 
 Scalar = int | float | bool | str | None
+# The metrics that are words (the run's settings as it ran them, the files of a figure); every
+# other metric is a number a table reads, and a float's range holds it.
+TEXT_METRICS = ("train/precision", "eval/network_mode", "eval/policy", "figure/")
+
+
+def _not_numbers(metrics: dict[str, Any]) -> list[str]:
+    """The metrics of ``metrics`` that should be numbers and are not (text, or an integer past
+    float's range)."""
+
+    def number(value: Any) -> bool:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return abs(value) <= sys.float_info.max
+        return value is None or isinstance(value, float | bool)
+
+    return [k for k, v in metrics.items() if not k.startswith(TEXT_METRICS) and not number(v)]
 
 
 def _machine(record: dict[str, Any]) -> str:

@@ -81,7 +81,7 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     log.info("resuming from %s", path)
     try:
         return torch.load(path, weights_only=True)
-    except (EOFError, RuntimeError, OSError, ValueError) as error:
+    except Exception as error:  # what a damaged file raises varies (pickle, index, ...): unreadable
         reason = " ".join(str(error).split()) or type(error).__name__
         raise UnreadableCheckpoint(
             f"{path} cannot be read ({reason[:200]}): pass resume=false to start the run over, "

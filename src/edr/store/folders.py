@@ -86,7 +86,7 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
     """Decide from ``out_dir``'s record and checkpoint; ``resume=False`` always starts over,
     ``True`` requires something to continue, ``auto`` takes what is there."""
     record_path = out_dir / RECORD_NAME
-    record = read_record(record_path) if record_path.is_file() else None
+    record = read_record(record_path) if os.path.lexists(record_path) else None  # a folder too
     nested = next(_nested_records(out_dir), None)
     if nested is not None:
         raise ConfigError(
@@ -313,9 +313,10 @@ class RunFolder(Callback):
     @staticmethod
     def _make(config: DictConfig, kind: Literal["run", "sweep"]) -> None:
         HydraConfig.instance().set_config(config)  # the folder's name reads hydra:runtime
-        folder = Path(config.hydra[kind].dir)
-        if problem := path_problem(folder, below=FOLDER_ROOM[kind]):
-            shown = str(folder) if len(str(folder)) < 120 else f"{str(folder)[:100]}..."
+        given = str(config.hydra[kind].dir)  # as given: Path("") is ".", the current folder
+        folder = Path(given)
+        if problem := path_problem(given, below=FOLDER_ROOM[kind]):
+            shown = given if len(given) < 120 else f"{given[:100]}..."
             print(f"edr-run: hydra.{kind}.dir={shown}: expected {problem}", file=sys.stderr)
             raise SystemExit(2)
         try:

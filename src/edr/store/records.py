@@ -16,10 +16,12 @@ absolute paths; whatever reads a record takes both.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import platform
 import socket
+import stat
 import subprocess
 import time
 from dataclasses import dataclass
@@ -110,14 +112,34 @@ class UnreadableRecord(ValueError):
     """A record that is empty, truncated or not JSON; the message names the file and the remedy."""
 
 
+def regular_file_bytes(path: Path) -> bytes:
+    """The bytes of ``path``, which must be a regular file (links followed): a folder, a named
+    pipe (which would block its reader forever) or a link loop is an :class:`OSError` saying
+    what it is; a missing file :class:`FileNotFoundError`, as ``open`` says."""
+    mode = os.stat(path).st_mode  # a link loop: ELOOP
+    if not stat.S_ISREG(mode):
+        kind = (
+            "a folder"
+            if stat.S_ISDIR(mode)
+            else "a named pipe"
+            if stat.S_ISFIFO(mode)
+            else "not a regular file"
+        )
+        raise OSError(errno.EINVAL, f"{kind}, not a file", str(path))
+    return Path(path).read_bytes()
+
+
 def read_record(path: Path) -> dict[str, Any]:
-    """The record at ``path``; :class:`UnreadableRecord` naming it if it cannot be parsed."""
+    """The record at ``path``; :class:`UnreadableRecord` naming it if it cannot be read or
+    parsed (a folder, a pipe, not JSON); :class:`FileNotFoundError` if there is none."""
     try:
-        with open(path) as f:
-            record = json.load(f)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        record = json.loads(regular_file_bytes(path).decode())
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError, RecursionError) as error:  # ValueError: JSON's, UTF-8's
+        reason = error.strerror if isinstance(error, OSError) else error
         raise UnreadableRecord(
-            f"{path} is not a readable run record ({error}): pass resume=false to start the run "
+            f"{path} is not a readable run record ({reason}): pass resume=false to start the run "
             "over, or move its folder away"
         ) from None
     if not isinstance(record, dict):
