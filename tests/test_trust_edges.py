@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -312,3 +313,119 @@ def test_a_checkpoint_of_any_damage_is_unreadable_not_a_traceback(content, tmp_p
     (tmp_path / "checkpoint.pt").write_bytes(content)
     with pytest.raises(UnreadableCheckpoint, match="cannot be read"):
         load_checkpoint(tmp_path / "checkpoint.pt")
+
+
+def test_several_values_without_m_are_refused_as_a_sweep(cli, tmp_path) -> None:
+    """battery c01: task=kth,atari without -m was Hydra's five-line "Ambiguous value", exit 1."""
+    result = cli("edr-run", "task=kth,atari", "debug=tiny", f"hydra.run.dir={tmp_path}/run",
+                 cwd=tmp_path)  # fmt: skip
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "task=kth,atari: several values are a sweep, which needs -m" in result.stderr
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("folder", ["hydra.run.dir=", "hydra.sweep.dir="])
+def test_an_empty_run_or_sweep_folder_is_refused_not_the_current_folder(
+    folder, cli, tmp_path
+) -> None:
+    """battery c04: hydra.run.dir= (empty) wrote the run's files into the current folder."""
+    multirun = ("-m",) if "sweep" in folder else ()
+    result = cli("edr-run", *multirun, "task=kth", "debug=tiny", folder, cwd=tmp_path)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert f"{folder}: expected a path (an empty one would mean the current folder)" in (
+        result.stderr
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("actions", "expected"),
+    [("[boxing,boxing]", "a list without repeats (boxing given more than once)"),
+     ("[]", "a list of at least one value")],
+)  # fmt: skip
+def test_kth_actions_are_each_listed_once_and_at_least_one(
+    actions, expected, compose_config, tmp_path
+) -> None:
+    """battery c05, c06: [boxing,boxing] trained the same videos as two classes; [] all six."""
+    from edr.checks.config import ConfigError, check_config
+    from edr.data.datasets import kth
+    from edr.run import ENTRY_KEYS
+
+    cfg = compose_config("task=kth", "debug=tiny", f"task.videos.actions={actions}")
+    with pytest.raises(
+        ConfigError, match=rf"task\.videos\.actions=.*: expected {re.escape(expected)}"
+    ):
+        check_config(cfg, entry=ENTRY_KEYS)  # the config check, before any decoding
+    with pytest.raises(ConfigError, match=re.escape(expected)):  # the data set's own, called alone
+        kth(tmp_path, actions=list(cfg.task.videos.actions))
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="no /proc, where nothing can be made")
+def test_a_cache_folder_that_cannot_be_made_is_refused_before_work(compose_config) -> None:
+    """battery c08: EDR_CACHE=/proc/edr_cache was a traceback from the first cache write (a
+    check of permissions passes as root: the check makes a folder there, and removes it)."""
+    from edr.checks.config import ConfigError, check_config
+    from edr.run import ENTRY_KEYS
+
+    cfg = compose_config("task=kth", "debug=tiny", "task.cache_dir=/proc/edr_cache")
+    with pytest.raises(ConfigError, match=r"task\.cache_dir='/proc/edr_cache': expected a folder "
+                                          r"this process can write \(one made in /proc: "):  # fmt: skip
+        check_config(cfg, entry=ENTRY_KEYS)
+
+
+def test_edr_bench_refuses_an_out_dir_it_cannot_write_into_before_measuring(
+    tmp_path, capsys
+) -> None:
+    """battery a26: --out-dir <a file> was a FileExistsError traceback after the timing."""
+    from edr.studies import bench
+
+    afile = tmp_path / "afile"
+    afile.write_text("keep")
+    with pytest.raises(SystemExit) as stop:
+        bench.main(["--events", str(tmp_path / "never_read.raw"), "--out-dir", str(afile)])
+    error = capsys.readouterr().err
+    assert stop.value.code == 2 and error.count("\n") == 1
+    assert f"edr-bench: --out-dir={afile}: expected a folder ({afile} is a file)" in error
+    assert afile.read_text() == "keep"
+
+
+def test_save_events_onto_a_folder_is_refused_before_the_run(compose_config, tmp_path) -> None:
+    """battery a27: a folder named dvs_events.npz in the run folder was an IsADirectoryError
+    traceback after every representation ran."""
+    from edr.data.events import RecordingError
+    from edr.run import run
+
+    out = tmp_path / "run"
+    (out / "dvs_events.npz" / "keep").mkdir(parents=True)
+    with pytest.raises(
+        RecordingError, match=r"dvs_events\.npz: \.npz: cannot be written: a folder"
+    ):
+        run(compose_config("task=event_camera", "task.save_events=.npz", "task.frames=6",
+                           f"out_dir={out}"))  # fmt: skip
+    assert (out / "dvs_events.npz" / "keep").is_dir() and not list(out.glob(".*partial*"))
+
+
+def test_a_folder_made_where_a_result_goes_during_the_run_is_one_line(
+    compose_config, tmp_path, monkeypatch, caplog
+) -> None:
+    """battery a27, the race the check before the run cannot see: the rename's OSError is one
+    line (exit 1), the record says failed, and no partial file stays."""
+    from edr import run as edr_run
+    from edr.store.atomic import atomic_path
+    from edr.tasks import event_camera
+
+    def folder_appears(path: Path, events: object, sensor: tuple[int, int]) -> Path:
+        path.mkdir()
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(b"events")
+        return path
+
+    monkeypatch.setattr(event_camera, "write_recording", folder_appears)
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as stop:
+        edr_run.hydra_app(compose_config("task=event_camera", "task.save_events=.npz",
+                                         "task.frames=6", f"out_dir={out}"))  # fmt: skip
+    errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert stop.value.code == 1 and len(errors) == 1 and "Is a directory" in errors[0], errors
+    assert json.loads((out / "run.json").read_text())["status"] == "failed"
+    assert not list(out.glob(".*partial*"))

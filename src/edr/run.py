@@ -258,8 +258,10 @@ class JobFailed(CompactHydraException):
     the sweep would wait for it forever)."""
 
 
-# Errors of the disk a run writes to, not of the suite: said in one line, as refusals are.
-DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO}
+# Errors of the disk a run writes to, or of what stands on it where a file goes (a folder made
+# there during the run), not of the suite: said in one line, as refusals are.
+DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO,
+               errno.EISDIR, errno.ENOTDIR}  # fmt: skip
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")

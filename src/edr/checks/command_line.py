@@ -84,6 +84,19 @@ def _refuse_twice_given(overrides: Sequence[Override]) -> None:
         seen[key] = override.input_line
 
 
+def _refuse_sweep_without_m(overrides: Sequence[Override], groups: Sequence[str]) -> None:
+    """One line for several values (``task=kth,atari``) without ``-m``: a sweep, which only a
+    multirun runs (Hydra: "Ambiguous value", several lines, exit 1)."""
+    for override in overrides:
+        if override.is_sweep_override():
+            key = override.key_or_group
+            a_list = "" if key in groups else f"; a list is written {key}=[...]"
+            raise ConfigError(
+                f"{override.input_line}: several values are a sweep, which needs -m "
+                f"(edr-run -m {override.input_line} ...){a_list}"
+            )
+
+
 SLURM_HELP = (
     "run the sweep on a Slurm cluster's login node, or start a one-node cluster on this "
     "machine with sweeps/slurm-local.sh start (docs/runs.md, On Slurm)"
@@ -125,12 +138,14 @@ def check_command_line(
         raise ConfigError(" ".join(str(error).split())) from None
     ours = [o for o in parsed if not o.key_or_group.startswith("hydra")]
     _refuse_twice_given(ours)
+    groups = sorted(p.name for p in Path(conf_dir).iterdir() if p.is_dir())
+    if not args.multirun:
+        _refuse_sweep_without_m(parsed, groups)
     if args.multirun and any(
         o.key_or_group == "hydra/launcher" and o.get_value_element_as_str() == "slurm"
         for o in parsed
     ):
         _check_slurm_answers()
-    groups = sorted(p.name for p in Path(conf_dir).iterdir() if p.is_dir())
     chosen = [o for o in ours if o.key_or_group in groups]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
         for override in chosen:  # an option that does not exist

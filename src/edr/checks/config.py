@@ -10,6 +10,7 @@ import importlib.util
 import inspect
 import math
 import os
+import tempfile
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
@@ -81,6 +82,8 @@ def path_problem(path: Any, below: int = 0) -> str | None:
     """What the OS refuses before any file is touched: a path or a name in it too long; with
     ``below``, a folder leaving too little room for that many levels of names under it (what
     a run writes into it: ``pretrain/checkpoint.pt``), each as long as the OS allows."""
+    if str(path) == "":
+        return "a path (an empty one would mean the current folder)"
     text = os.fsencode(os.path.abspath(os.path.expanduser(str(path))))  # as the OS sees it
     name_max, path_max = _path_limits()
     room = below * (name_max + 1)
@@ -116,6 +119,26 @@ def _file_in_the_way(path: Any) -> str | None:
     return None
 
 
+def _cannot_create(path: Any) -> str | None:
+    """Where a folder must be written at ``path``: why its nearest existing folder takes no new
+    folder, tried with an empty one made and removed at once (``os.access`` says yes to root, on
+    /proc too), or None."""
+    place = Path(str(path)).expanduser().absolute()
+    while not place.exists() and place != place.parent:
+        place = place.parent
+    try:  # named as an atomic writer's partial file: removed at a run's start if left behind
+        os.rmdir(tempfile.mkdtemp(dir=place, prefix=".edr-write-check.", suffix=".partial"))
+    except OSError as error:
+        return f"a folder this process can write (one made in {place}: {error.strerror})"
+    return None
+
+
+def writable_folder_problem(path: Any, below: int = 0) -> str | None:
+    """What stops a run writing into the folder ``path`` (made if missing), with room for
+    ``below`` levels of names under it (:func:`path_problem`), or None."""
+    return path_problem(path, below) or _file_in_the_way(path) or _cannot_create(path)
+
+
 def _data_root_problem(path: Any) -> str | None:
     if path == "":
         return "a folder (an empty path is not a data set; null generates one)"
@@ -135,9 +158,7 @@ def _existing_file_problem(path: Any) -> str | None:
 
 
 # A folder a run writes into, with room for a subfolder and a file in it (a cache's entries).
-OutputDir = Annotated[
-    str, Check(lambda path: path_problem(path, below=2) or _file_in_the_way(path))
-]
+OutputDir = Annotated[str, Check(lambda path: writable_folder_problem(path, below=2))]
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
 ExistingDir = Annotated[str, Check(_existing_dir_problem)]  # a folder a task reads
 ExistingFile = Annotated[str, Check(_existing_file_problem)]  # a file a task reads
@@ -234,6 +255,14 @@ def _non_empty_problem(values: Any) -> str | None:
 
 
 NonEmpty = Check(_non_empty_problem)  # for Annotated[Sequence[...], NonEmpty]
+
+
+def _repeat_problem(values: Any) -> str | None:
+    twice = sorted({str(v) for v in values if list(values).count(v) > 1})
+    return f"a list without repeats ({', '.join(twice)} given more than once)" if twice else None
+
+
+Distinct = Check(_repeat_problem)  # for Annotated[Sequence[...], Distinct]
 
 
 # A torch optimizer's arguments (its own annotations do not say their ranges).

@@ -34,11 +34,14 @@ import numpy as np
 
 from edr.checks.config import (
     ConfigError,
+    Distinct,
     Fraction,
+    NonEmpty,
     NonNegativeInt,
     OpenFraction,
     Range,
     check_memory,
+    mismatch,
 )
 from edr.data.fingerprint import files_fingerprint, relative_name
 from edr.data.synthetic import KTH_ACTIONS
@@ -265,6 +268,10 @@ def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
     return VideoSet(tuple(videos), tuple(d.name for d in folders), time_split=time_split)
 
 
+# KTH classes to train: each once (one listed twice would be two classes of the same videos)
+KthActions = Annotated[Sequence[str], NonEmpty, Distinct]
+
+
 def kth(
     root: str | Path,
     *,
@@ -272,7 +279,7 @@ def kth(
     protocol: Literal["random", "person", "person_folds", "time"] = "random",
     train_fraction: OpenFraction = 0.75,
     seed: int = 0,
-    actions: Sequence[str] | None = None,
+    actions: KthActions | None = None,
     folds: Annotated[int, Range(2)] = 2,
     fold: NonNegativeInt = 0,
     sequences: str | Path | None = None,
@@ -286,7 +293,9 @@ def kth(
     six, in KTH's order). ``sequences``: KTH's ``00sequences.txt``, whose sub-sequences then
     bound where clips are taken (the frames between them show no action)."""
     root = Path(root)
-    actions = tuple(actions) if actions else KTH_ACTIONS
+    if actions is not None and (expected := mismatch(actions, KthActions)):
+        raise ConfigError(f"task.videos.actions={list(actions)}: expected {expected}")
+    actions = KTH_ACTIONS if actions is None else tuple(actions)
     unknown = sorted(set(actions) - set(KTH_ACTIONS))
     if unknown:
         raise ConfigError(f"task.videos.actions: {unknown} are not KTH actions ({KTH_ACTIONS})")

@@ -33,6 +33,7 @@ import numba
 import torch
 from tqdm import tqdm
 
+from edr.checks.config import writable_folder_problem
 from edr.data import read_video, synthetic_scene
 from edr.models.paac import Core
 from edr.models.precision import PRECISION_CHOICES
@@ -325,7 +326,8 @@ AT_LEAST = {"repeats": 1, "warmup": 0, "frames": 2, "flow_frames": 2, "long_fram
 
 def _settings(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
     """The options, --quick's sizes filled in where not given; one line (exit 2) for a count
-    below what can be timed (``--repeats 0``: no call to take a median of)."""
+    below what can be timed (``--repeats 0``: no call to take a median of) or an ``--out-dir``
+    the record cannot be written into (a file, a read-only disk)."""
     args = parser.parse_args(argv)
     if args.quick:
         for key, value in QUICK.items():
@@ -335,6 +337,8 @@ def _settings(parser: argparse.ArgumentParser, argv: list[str] | None) -> argpar
         if getattr(args, key) < low:
             parser.exit(2, f"edr-bench: --{key.replace('_', '-')}={getattr(args, key)}: "
                            f"expected a number >= {low}\n")  # fmt: skip
+    if problem := writable_folder_problem(args.out_dir):  # said before the minutes of timing
+        parser.exit(2, f"edr-bench: --out-dir={args.out_dir}: expected {problem}\n")
     return args
 
 

@@ -59,6 +59,11 @@ def stream_cost(
     }
 
 
+def events_path(out_dir: Path, name: str, suffix: str) -> Path:
+    """Where ``save_events`` writes representation ``name``'s events: ``<name>_events<suffix>``."""
+    return out_dir / f"{name}_events{suffix}"
+
+
 def events_of_output(
     rep: Representation, clip: torch.Tensor, out: torch.Tensor, fps: float
 ) -> np.ndarray | None:
@@ -142,8 +147,9 @@ def event_camera(
     events of the DVS simulator and of a hard-threshold EDR into the run folder,
     ``<name>_events<suffix>``, for other event tools."""
     check_enough_frames(frames, representations)
-    if save_events:  # a sensor its format cannot hold is said now, not after the work
-        check_writable(out_dir / f"events{save_events}", (height, width))
+    # said now, not after the work: a sensor the format cannot hold, a folder where a file goes
+    for name in representations if save_events else ():
+        check_writable(events_path(out_dir, name, save_events), (height, width))
     # ---- a real camera's recording, checked before the clip ------------------------------------
     camera = recording_cost(events, fps, timestamp_bits) if events else {}
 
@@ -169,7 +175,7 @@ def event_camera(
         metrics.update({f"{name}/{key}": value for key, value in cost.items()})
         if save_events and (listed := events_of_output(rep, clip, out, fps)) is not None:
             written = write_recording(
-                out_dir / f"{name}_events{save_events}", listed, (height, width)
+                events_path(out_dir, name, save_events), listed, (height, width)
             )
             log.info("%s: %d events written to %s", name, len(listed), written)
         log.info("%s: %.3g events/s, %.3g bits/s, sparsity %.3f", name, cost["events_per_s"],

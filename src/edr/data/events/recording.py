@@ -9,6 +9,7 @@ here, for every format; what a writer is given is checked here before any format
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from itertools import chain
@@ -210,8 +211,9 @@ def sensor_of(path: str | Path, events: np.ndarray) -> tuple[int, int]:
 
 def check_writable(path: str | Path, sensor: tuple[int, int]) -> str:
     """The format a ``path``'s suffix picks, once it is known to hold a ``sensor`` = (height,
-    width): what :func:`write_recording` refuses for the suffix and the sensor alone, said
-    before any events are made (ValueError for an unknown suffix, RecordingError otherwise)."""
+    width): what :func:`write_recording` refuses for the suffix, the sensor and what stands at
+    ``path`` alone, said before any events are made (ValueError for an unknown suffix,
+    RecordingError otherwise)."""
     path = Path(path)
     name = WRITE_SUFFIXES.get(path.suffix.lower())
     if name is None:
@@ -219,6 +221,9 @@ def check_writable(path: str | Path, sensor: tuple[int, int]) -> str:
             f"{path}: cannot write {path.suffix or 'no suffix'}; writable: "
             + ", ".join(f"{s} ({n})" for s, n in WRITE_SUFFIXES.items())
         )
+    if os.path.lexists(path) and not path.is_file():  # a folder: the final rename would fail
+        there = "a folder" if path.is_dir() else "something other than a regular file"
+        raise RecordingError(path, name, f"cannot be written: {there} is in its place")
     bounded_sensor(path, name, (int(sensor[0]), int(sensor[1])), FORMATS[name].max_side)
     if name == "AEDAT 2.0":
         try:
