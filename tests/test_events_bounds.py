@@ -1,6 +1,8 @@
 """What every event reader and writer accepts, and the one line it gives for the rest: times
 beyond a format's clock, values beyond their fields, sensor sizes, things that are not files,
-and memory in proportion to the events (docs/events.md, "What a reader and writer accept")."""
+memory in proportion to the events, arrays of the wrong shape, where AEDAT 2.0's header ends,
+and the sensor and frame rate a recording is measured at (docs/events.md, "What a reader and
+writer accept")."""
 
 from __future__ import annotations
 
@@ -143,6 +145,22 @@ def _written(path: Path, data: bytes) -> Path:
     return path
 
 
+def _mvsec(path: Path, rows: list[list[float]]) -> Path:
+    """An MVSEC-layout file: ``rows`` (N, 4) of x, y, t (s), p (-1/1) as float64."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(path, "w") as f:
+        f["davis/left/events"] = np.asarray(rows, np.float64)
+    return path
+
+
+def _aedat31_of_one_event(path: Path, t: int) -> Path:
+    """An AEDAT 3.1 file of one polarity packet (overflow 0) of one valid event at int32 ``t``."""
+    packet = struct.pack("<hhiiiiii", 1, 1, 8, 4, 0, 1, 1, 1)  # type, source, size, ..., valid
+    event = struct.pack("<Ii", 1 | (1 << 2) | (1 << 17), t)  # valid, y 1, x 1; int32 time
+    header = b"#!AER-DAT3.1\r\n#Source 1: DVS128\r\n#!END-HEADER\r\n"
+    return _written(path, header + packet + event)
+
+
 def _dsec(path: Path, x: list[int]) -> Path:
     h5py = pytest.importorskip("h5py")
     with h5py.File(path, "w") as f:
@@ -176,9 +194,22 @@ BAD_VALUES = {  # a file whose values numpy would narrow silently: (file, its on
         lambda d: _dsec(d / "events.h5", [70000, 1]),
         "HDF5: x = 70000 outside any sensor",
     ),
+    "MVSEC NaN time (numpy casts it to -2^63)": (  # battery a02
+        lambda d: _mvsec(d / "data.hdf5", [[1, 1, 0.0, 1], [2, 2, float("nan"), -1]]),
+        "HDF5: t = nan is not a finite number",
+    ),
+    "MVSEC 1e14 s (1e20 µs, beyond int64)": (  # battery a03
+        lambda d: _mvsec(d / "data.hdf5", [[1, 1, 0.0, 1], [2, 2, 1e14, -1]]),
+        "HDF5: t = 1e+20 µs, beyond int64",
+    ),
+    "AEDAT 3.1 int32 time -5 (4294967291 as unsigned)": (  # battery a08
+        lambda d: _aedat31_of_one_event(d / "rec.aedat", -5),
+        "AEDAT 3.1: timestamp -5 µs is negative",
+    ),
 }
 
 
+@pytest.mark.filterwarnings("error")  # numpy's RuntimeWarning on a cast it cannot hold, too
 @pytest.mark.parametrize("case", BAD_VALUES)
 def test_a_value_beyond_its_field_is_refused_by_its_value(tmp_path, case) -> None:
     make, problem = BAD_VALUES[case]
@@ -348,3 +379,104 @@ def test_reading_a_dense_evt3_file_holds_its_events_once(tmp_path, monkeypatch) 
         tracemalloc.stop()
     assert peak < 1.2 * events.nbytes  # a list of the chunks and their join: 2x
     np.testing.assert_array_equal(events, expected)
+
+
+# 6: a file's arrays are 1-d columns of one length (MVSEC's: (N, 4) rows), refused by name
+
+
+def _hdf5_of(path: Path, make) -> Path:
+    """An HDF5 file that ``make(file)`` fills."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(path, "w") as f:
+        make(f)
+    return path
+
+
+BAD_COLUMNS = {  # (file, its one line): each was a TypeError or AttributeError traceback
+    ".npz of 0-d scalars": (  # battery a01
+        lambda d: npz_recording(d / "rec.npz", **{k: np.array(5) for k in "txyp"}),
+        ".npz: t is a scalar, not 1-d",
+    ),
+    ".npz x of 3 events, t of 2": (
+        lambda d: npz_recording(d / "rec.npz", x=[1, 2, 3]),
+        ".npz: its columns differ in length (t 2, x 3, y 2, p 2)",
+    ),
+    ".npz 2-d p": (
+        lambda d: npz_recording(d / "rec.npz", p=[[0, 1]]),
+        ".npz: p is of shape (1, 2), not 1-d",
+    ),
+    "MVSEC events a group": (  # battery a04
+        lambda d: _hdf5_of(d / "data.hdf5", lambda f: f.create_group("davis/left/events")),
+        "HDF5 (MVSEC): davis/left/events is a Group (no array), not (N, 4) rows",
+    ),
+    "DSEC scalar datasets": (  # battery a05
+        lambda d: _hdf5_of(
+            d / "events.h5", lambda f: [f.create_dataset(f"events/{k}", data=1) for k in "txyp"]
+        ),
+        "HDF5 (DSEC): events/t is a scalar, not 1-d",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", BAD_COLUMNS)
+def test_columns_that_are_not_1d_of_one_length_are_refused_by_name(tmp_path, case) -> None:
+    make, problem = BAD_COLUMNS[case]
+    path = make(tmp_path)
+    with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
+        read_recording(path)
+    _one_line(caught, path)
+
+
+# 7: AEDAT 2.0's header ends where jAER's does, or at the first line that is not one
+
+
+def test_a_davis_file_without_an_end_line_reads_its_first_event_starting_with_hash(
+    tmp_path,
+) -> None:
+    """battery a11: the first address byte 0x23 ('#') made both events a header line."""
+    words = np.array([[0x23000000 | (3 << 12), 1], [4 << 12, 2]], ">u4")  # (N, 2): address, t
+    header = b"#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.Davis346red\r\n"
+    path = _written(tmp_path / "rec.aedat", header + words.tobytes())
+    expected = _events([1, 2], x=[3, 4], y=[259 - 0x8C, 259], p=0)  # address bits 22-30: 0x8C
+    np.testing.assert_array_equal(read_recording(path), expected)
+    assert recording_sensor_size(path) == (260, 346)  # its header lines are still read
+
+
+# 8: a recording's measured sensor, and the frame rate it is binned at
+
+
+def _evt3_without_geometry(path: Path, micros: int) -> Path:
+    """EVT 3.0 stating no sensor: 12 events (y 0, x 0..11) each µs, then one at x 1200, y 700."""
+    i = np.arange(micros)
+    words = np.empty((micros, 5), np.uint16)
+    words[:, 0], words[:, 1] = 0x8000 | (i >> 12), 0x6000 | (i & 0xFFF)  # TIME_HIGH, TIME_LOW
+    words[:, 2], words[:, 3], words[:, 4] = 0, 0x3800, 0x4FFF  # y 0, base x 0 ON, 12 bits
+    last = [0x8000 | (micros >> 12), 0x6000 | (micros & 0xFFF), 700, 0x2000 | (1 << 11) | 1200]
+    data = np.concatenate([words.ravel(), np.array(last, np.uint16)])
+    return _written(path, b"% evt 3.0\n" + data.astype("<u2").tobytes())
+
+
+def test_a_recording_stating_no_sensor_spans_the_events_of_every_chunk(
+    tmp_path, monkeypatch
+) -> None:
+    """battery a29: the sensor came from the first chunk alone (12x1, not 1201x701)."""
+    from edr.tasks.event_camera import recording_cost
+
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", 1000)  # 13 chunks; the widest event last
+    path = _evt3_without_geometry(tmp_path / "wide.raw", 1000)
+    events = read_recording(path)
+    cost = recording_cost(path, fps=25_000.0, timestamp_bits=32)  # 40 µs frames: 26 of them
+    assert cost["data/events_sensor"] == "1201x701" and not cost["data/events_sensor_stated"]
+    frame = (events["t"] - events["t"][0]) // 40
+    bins = len(np.unique(np.stack([frame, events["p"], events["y"], events["x"]]), axis=1).T)
+    assert cost["camera/sparsity"] == pytest.approx(1 - bins / (26 * 2 * 701 * 1201))
+
+
+def test_a_frame_rate_finer_than_a_microsecond_is_refused_before_the_run(compose_config) -> None:
+    """battery a30: task.fps=1e300 cast a frame's index beyond int64 (a RuntimeWarning)."""
+    from edr.checks.config import ConfigError, check_config
+    from edr.run import ENTRY_KEYS
+
+    cfg = compose_config("task=event_camera", "debug=tiny", "task.fps=1e300")
+    with pytest.raises(ConfigError, match=r"task\.fps=1e\+300: expected a number <= 1000000"):
+        check_config(cfg, entry=ENTRY_KEYS)

@@ -11,8 +11,9 @@ as a frame camera sends them: every pixel of every frame at 8 bits per channel.
 With ``events=<file>`` (any format :mod:`edr.data.events` reads), a real camera's recording
 is measured too, as the row ``camera``: its events/s; its bits/s in the paper's model (address
 + timestamp, as above) and in the file's own bytes per event (``file_bits_per_s``); its events
-per pixel per frame interval and its sparsity, binned at ``fps``. The file is streamed in
-chunks: memory stays bounded whatever its length.
+per pixel per frame interval and its sparsity, binned at ``fps`` (at most one frame a µs, the
+finest time an event file holds). The file is streamed in chunks: memory stays bounded whatever
+its length; where it states no sensor, the sensor is the span of all its events.
 """
 
 from __future__ import annotations
@@ -20,12 +21,12 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import torch
 
-from edr.checks.config import ExistingFile, PositiveFloat, PositiveInt
+from edr.checks.config import ExistingFile, PositiveInt, Range
 from edr.data.events import (
     check_writable,
     detect_format,
@@ -34,12 +35,19 @@ from edr.data.events import (
     sensor_of,
     write_recording,
 )
+from edr.data.events.checks import MAX_SIDE
 from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import FDR, DVSCamera, Representation
 from edr.representations.base import check_enough_frames, to_gray
 from edr.representations.dvs import EVENT_DTYPE
 
 log = logging.getLogger(__name__)
+
+MAX_FPS = 1e6  # one frame a µs: event files hold no finer time
+FrameRate = Annotated[float, Range(0, MAX_FPS, open=True)]  # frames per second
+# (polarity, y, x) bins of the largest sensor read: a pixel's key while a recording that states
+# no sensor is still being read (its sensor is the span of all its events)
+PIXEL_BINS = 2 * MAX_SIDE * MAX_SIDE
 
 
 def stream_cost(
@@ -85,27 +93,38 @@ def events_of_output(
     return np.sort(listed, order="t", kind="stable")
 
 
+def _new_bins(frame: np.ndarray, pixel: np.ndarray, carried: np.ndarray) -> tuple[int, np.ndarray]:
+    """One chunk's (frame interval, pixel) bins: how many are new, and the pixels of its last
+    interval. ``frame`` (N,) its events' intervals (sorted), ``pixel`` (N,) their keys below
+    PIXEL_BINS, ``carried`` the pixels of its first interval seen in the chunk before."""
+    step = np.concatenate([[0], np.cumsum(frame[1:] != frame[:-1])])  # (N,) < 2^20: no overflow
+    keys = np.unique(np.concatenate([carried, step * PIXEL_BINS + pixel]))
+    last = int(step[-1]) * PIXEL_BINS
+    return len(keys) - len(carried), keys[keys >= last] - last
+
+
 def recording_cost(path: str | Path, fps: float, timestamp_bits: int) -> dict[str, Any]:
     """A real recording's rates (``stream_cost``'s, plus the file's own bits per event) and its
     ``data/*`` entries. Sparsity: the share of (frame interval, polarity, y, x) bins without an
-    event, counted chunk by chunk (a bin that spans two chunks is carried over)."""
+    event, counted chunk by chunk (a bin that spans two chunks is carried over); the sensor: the
+    one the file states, else the span of all its chunks' events."""
     path = Path(path)
     frame_us = 1e6 / fps
-    height = width = 0
     count, first, last, filled = 0, 0, 0, 0
-    carry = np.zeros(0, np.int64)  # keys of the last frame interval seen
+    carry, carry_frame = np.zeros(0, np.int64), -1.0  # the last frame interval's pixels seen
+    bounding = []  # each chunk's events of the largest x and y
     for chunk in iter_recording(path):
+        if not len(chunk):
+            continue
         if not count:
-            height, width = sensor_of(path, chunk)
             first = int(chunk["t"][0])
-        frame = (chunk["t"] - first) // frame_us
-        keys = ((frame.astype(np.int64) * 2 + chunk["p"]) * height + chunk["y"]) * width + chunk[
-            "x"
-        ]
-        bins = np.unique(np.concatenate([carry, keys]))
-        filled += len(bins) - len(carry)
-        carry = bins[bins >= int(frame[-1]) * 2 * height * width]
+        frame = (chunk["t"] - first) // frame_us  # (N,) float: never cast, however many
+        pixel = (chunk["p"].astype(np.int64) * MAX_SIDE + chunk["y"]) * MAX_SIDE + chunk["x"]
+        new, carry = _new_bins(frame, pixel, carry if frame[0] == carry_frame else carry[:0])
+        filled, carry_frame = filled + new, frame[-1]
+        bounding.append(chunk[[int(chunk["x"].argmax()), int(chunk["y"].argmax())]])
         count, last = count + len(chunk), int(chunk["t"][-1])
+    height, width = sensor_of(path, np.concatenate(bounding))
     seconds = (last - first + 1) / 1e6
     frames = max(1, int(np.ceil((last - first + 1) / frame_us)))
     bits_per_event = math.ceil(math.log2(2 * height * width)) + timestamp_bits
@@ -136,7 +155,7 @@ def event_camera(
     frames: PositiveInt = 90,
     height: FrameSide = 120,
     width: FrameSide = 160,
-    fps: PositiveFloat = 25.0,
+    fps: FrameRate = 25.0,
     timestamp_bits: PositiveInt = 32,
     value_bits: PositiveInt = 16,
     events: ExistingFile | None = None,

@@ -6,14 +6,19 @@ int16, a polarity other than 0/1); :class:`Checked` checks each chunk as it come
 >= 0 and sorted across chunks, x/y on the sensor) so a bad file is refused in one line naming
 the file, its format and what is wrong. The other bounds every reader and writer share live
 here too: :func:`regular_file`, :func:`bounded_sensor` (a sensor's size), :func:`stated_t0`
-and :func:`time_origin` (the time a header states its timestamps count from).
+and :func:`time_origin` (the time a header states its timestamps count from),
+:func:`column_length` (a file's t, x, y, p arrays: 1-d, of one length), :func:`rounded` (a
+float column, refused where numpy's cast to int64 would not hold it) and
+:func:`signed_times` (a signed clock read as signed, a negative time refused, never wrapped).
 """
 
 from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -101,7 +106,57 @@ def time_origin(path: str | Path, format_name: str, t: np.ndarray, span_us: int)
     return first
 
 
-def unfit(name: str, value: int) -> UnfitValue:
+def layout_of(value: Any) -> str:
+    """What an array-like ``value`` is, for a refusal: 'a scalar', 'of shape (3, 2)', or, where
+    it holds no array (an HDF5 group), its type."""
+    shape = getattr(value, "shape", None)
+    if shape is None:
+        return f"a {type(value).__name__} (no array)"
+    return "a scalar" if shape == () else f"of shape {tuple(shape)}"
+
+
+def column_length(path: str | Path, format_name: str, columns: Mapping[str, Any]) -> int:
+    """N, where every one of ``columns`` (name -> a numpy array or an HDF5 dataset) is 1-d
+    (N,); refused, naming the column, where one is a scalar, of another rank, no array at all,
+    or of another length (``len`` of a scalar would fail with a TypeError)."""
+    lengths: dict[str, int] = {}
+    for name, column in columns.items():
+        shape = getattr(column, "shape", None)
+        if shape is None or len(shape) != 1:
+            raise RecordingError(path, format_name, f"{name} is {layout_of(column)}, not 1-d")
+        lengths[name] = int(shape[0])
+    if len(set(lengths.values())) > 1:
+        found = ", ".join(f"{name} {n}" for name, n in lengths.items())
+        raise RecordingError(path, format_name, f"its columns differ in length ({found})")
+    return next(iter(lengths.values()), 0)
+
+
+def rounded(name: str, values: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """A float column of field ``name`` times ``scale`` (to its unit: s -> µs), rounded to
+    int64; UnfitValue where a value is not a finite number or beyond int64 (numpy's cast makes
+    either -2^63, with only a warning)."""
+    if values.dtype.kind not in "biuf":
+        raise UnfitValue(f"{name} holds {values.dtype} values, not numbers")
+    scaled = np.round(values * scale)
+    bad = ~(np.abs(scaled) < 2.0**63)  # NaN compares False: bad too
+    if bad.any():
+        value = float(scaled[np.argmax(bad)])
+        if not np.isfinite(value):
+            raise UnfitValue(f"{name} = {value} is not a finite number")
+        raise unfit(name, value)
+    return scaled.astype(np.int64)
+
+
+def signed_times(t: np.ndarray) -> np.ndarray:
+    """Timestamps ``t`` of a signed clock (AEDAT 3.1's int32), as int64, UnfitValue at a
+    negative one: read through an unsigned view, -5 would be 4294967291 µs."""
+    t = t.astype(np.int64)
+    if len(t) and t.min() < 0:
+        raise UnfitValue(f"timestamp {int(t.min())} µs is negative")
+    return t
+
+
+def unfit(name: str, value: float) -> UnfitValue:
     """The error for ``value`` of field ``name`` beyond what the field holds."""
     return UnfitValue(f"{name} = {value} {BEYOND[name]}")
 

@@ -5,10 +5,15 @@
 - DSEC: datasets ``events/{x,y,t,p}`` (t µs as stored: its ``t_offset`` is not added; p 0/1;
   blosc-compressed, hence hdf5plugin),
   Prophesee Gen3.1 640x480.
-- MVSEC: dataset ``davis/left/events`` (N, 4) float64 rows (x, y, t seconds, p -1/1), DAVIS346.
+- MVSEC: dataset ``davis/left/events`` (N, 4) float64 rows (x, y, t seconds, p -1/1), DAVIS346;
+  a value not finite or beyond int64 once in µs is refused before the cast
+  (:func:`edr.data.events.checks.rounded`).
 - ``.npz``: integer arrays ``t`` (µs), ``x``, ``y``, ``p`` (1 ON, 0 OFF) of equal length, and
   optionally ``sensor`` = (height, width). It states no time unit, so float timestamps are
   refused (:func:`edr.data.events.checks.events_of`), never truncated.
+
+DSEC's and the ``.npz``'s columns are 1-d of one length, MVSEC's events an (N, 4) dataset; a
+scalar, a group or another rank is refused by name (:func:`edr.data.events.checks.column_length`).
 """
 
 from __future__ import annotations
@@ -20,12 +25,20 @@ from typing import Any
 
 import numpy as np
 
-from edr.data.events.checks import CHUNK_EVENTS, RecordingError, events_of
+from edr.data.events.checks import (
+    CHUNK_EVENTS,
+    RecordingError,
+    column_length,
+    events_of,
+    layout_of,
+    rounded,
+)
 from edr.store.atomic import atomic_path
 
 NMNIST_SENSOR = (34, 34)
 DSEC_SENSOR, MVSEC_SENSOR = (480, 640), (260, 346)
 MVSEC_EVENTS = "davis/left/events"
+MVSEC_UNITS = (("x", 1.0), ("y", 1.0), ("t", 1e6), ("p", 1.0))  # its columns, to µs
 
 
 def nmnist_chunks(path: Path) -> Iterator[np.ndarray]:
@@ -76,24 +89,23 @@ def hdf5_chunks(path: Path) -> Iterator[np.ndarray]:
     layout = hdf5_layout(path)
     with _h5py(path).File(path, "r") as f:
         if layout == "DSEC":
-            columns = [f[f"events/{k}"] for k in "txyp"]
-            n = len(columns[0])
-            if any(len(c) != n for c in columns):
-                raise RecordingError(path, "HDF5 (DSEC)", "events/x, y, t, p differ in length")
+            columns = {k: f[f"events/{k}"] for k in "txyp"}
+            n = column_length(path, "HDF5 (DSEC)", {f"events/{k}": c for k, c in columns.items()})
             for start in range(0, n, CHUNK_EVENTS):
                 part = slice(start, start + CHUNK_EVENTS)
-                yield events_of(*(np.asarray(c[part]) for c in columns))
+                yield events_of(*(np.asarray(c[part]) for c in columns.values()))
             return
         rows = f[MVSEC_EVENTS]
-        if rows.ndim != 2 or rows.shape[1] != 4:
+        shape = getattr(rows, "shape", None)  # a group has none
+        if shape is None or len(shape) != 2 or shape[1] != 4:
             raise RecordingError(
-                path, "HDF5 (MVSEC)", f"{MVSEC_EVENTS} is {rows.shape}, not (N, 4)"
+                path, "HDF5 (MVSEC)", f"{MVSEC_EVENTS} is {layout_of(rows)}, not (N, 4) rows"
             )
-        for start in range(0, len(rows), CHUNK_EVENTS):
+        for start in range(0, shape[0], CHUNK_EVENTS):
             block = np.asarray(rows[start : start + CHUNK_EVENTS])  # (n, 4): x, y, t s, p ±1
             # the layout states its units (seconds; whole pixels stored as floats)
-            x, y, t = np.round(block[:, :3] * (1, 1, 1e6)).astype(np.int64).T
-            yield events_of(t, x, y, block[:, 3] > 0)
+            x, y, t, p = (rounded(k, block[:, i], s) for i, (k, s) in enumerate(MVSEC_UNITS))
+            yield events_of(t, x, y, p > 0)
 
 
 def _npz_arrays(path: Path) -> dict[str, np.ndarray]:
@@ -120,12 +132,10 @@ def npz_sensor(path: Path) -> tuple[int, int] | None:
 
 def npz_chunks(path: Path) -> Iterator[np.ndarray]:
     arrays = _npz_arrays(path)
-    t, x, y, p = (arrays[k] for k in ("t", "x", "y", "p"))
-    if not len(t) == len(x) == len(y) == len(p) or t.ndim != 1:
-        raise RecordingError(path, ".npz", "t, x, y, p must be 1-D arrays of one length")
-    if not len(t):
+    columns = {k: arrays[k] for k in ("t", "x", "y", "p")}
+    if not column_length(path, ".npz", columns):
         return  # refused as "no events" by the caller
-    yield events_of(t, x, y, p)  # integers that fit their fields (p 0 or 1), or refused
+    yield events_of(*columns.values())  # integers that fit their fields (p 0 or 1), or refused
 
 
 def write_npz(path: Path, events: np.ndarray, sensor: tuple[int, int]) -> Path:

@@ -1,9 +1,17 @@
 """jAER's and cAER's files: AEDAT 2.0 (DVS128 and DAVIS chips) and AEDAT 3.1 (polarity packets).
 
 AEDAT 2.0: '#' header lines (``# AEChip: <java class>`` names the chip), then big-endian
-(uint32 address, uint32 timestamp µs) pairs. This suite writes the timestamps after the first
-event's and states that time in a ``# t0 <µs>`` header line, added back when read: a 32-bit
-timestamp holds 71 minutes, not a camera's epoch clock (1.6e15 µs).
+(uint32 address, uint32 timestamp µs) pairs. jAER (``AEFileInputStream.readHeader``) ends the
+header at its ``#End Of ASCII Header`` line, else at the first line not starting with '#'; its
+writer ends each line in CR LF. A file without the end line whose first address byte is 0x23
+('#') would have its events eaten as a header line, so a header line here is also text: it
+ends in LF (CR LF, or LF alone as in tonic's sample) within 64 KiB and holds no NUL byte.
+Every DVS event holds one (a DAVIS address's bits 0-9 are zero, a DVS128 address is 15 bits),
+so the data begins at the first DVS event. Left ambiguous (jAER reads it as header too): a file
+without the end line whose data starts with '#' and non-DVS words (IMU, APS) free of NUL up to
+a byte 0x0A. This suite writes the timestamps after the first event's and states that time in
+a ``# t0 <µs>`` header line, added back when read: a 32-bit timestamp holds 71 minutes, not a
+camera's epoch clock (1.6e15 µs).
 - DVS128 (also when no chip is named, as the paper's sensor): polarity in bit 0 (1 = OFF),
   x in bits 1-7 (mirrored), y in bits 8-14.
 - DAVIS240 / DAVIS346: a DVS event has bits 31 (APS sample) and 10 (IMU / special) clear;
@@ -11,7 +19,8 @@ timestamp holds 71 minutes, not a camera's epoch clock (1.6e15 µs).
 AEDAT 3.1: '#' header lines up to ``#!END-HEADER``, then packets: a 28-byte little-endian header
 (type, source, size, ts offset, ts overflow, capacity, number, valid) and its events. Polarity
 packets (type 1): uint32 data (bit 0 valid, bit 1 polarity 1 = ON, y bits 2-16, x bits 17-31)
-and int32 timestamp, extended by ``overflow << 31``. Other packets (frames, IMU) are skipped.
+and int32 timestamp, extended by ``overflow << 31`` (a negative one is refused, never read as
+unsigned). Other packets (frames, IMU) are skipped.
 Both are read memory-mapped, a chunk at a time.
 """
 
@@ -27,6 +36,7 @@ from edr.data.events.checks import (
     CHUNK_EVENTS,
     RecordingError,
     events_of,
+    signed_times,
     stated_t0,
     time_origin,
 )
@@ -42,16 +52,25 @@ PACKET_HEADER = np.dtype([("type", "<i2"), ("source", "<i2"), ("size", "<i4"), (
                           ("overflow", "<i4"), ("capacity", "<i4"), ("number", "<i4"),
                           ("valid", "<i4")])  # fmt: skip
 POLARITY_EVENT = 1
+POLARITY = np.dtype([("data", "<u4"), ("t", "<i4")])  # AEDAT 3.1's polarity event
+HEADER_LINE_BYTES = 1 << 16  # a longer "line" is data: reading one stays bounded
+
+
+def _is_header_line(line: bytes) -> bool:
+    """Whether ``line`` (up to and with its LF) is a header line: '#', no NUL byte, a line end
+    (see the module's docstring)."""
+    return line.startswith(b"#") and line.endswith(b"\n") and b"\0" not in line
 
 
 def _header(path: Path, end: bytes | None = None) -> tuple[list[str], int]:
-    """The '#' header lines (text) and the byte offset where the data begins."""
+    """The '#' header lines (text) and the byte offset where the data begins: after ``end``'s
+    line, or at the first line that is no header line."""
     lines: list[str] = []
     with path.open("rb") as f:
         while True:
             start = f.tell()
-            line = f.readline()
-            if not line.startswith(b"#"):
+            line = f.readline(HEADER_LINE_BYTES)
+            if not _is_header_line(line):
                 return lines, start
             lines.append(line.decode("latin-1").rstrip("\r\n"))
             if end is not None and line.lower().startswith(end.lower()):
@@ -199,10 +218,10 @@ def aedat31_chunks(path: Path) -> Iterator[np.ndarray]:
         if head["type"] == POLARITY_EVENT:
             if size != 8:
                 raise RecordingError(path, "AEDAT 3.1", f"polarity events of {size} bytes, not 8")
-            words = body[at:end].view("<u4").reshape(-1, 2)  # (N, 2): data, timestamp
-            data = words[:, 0].astype(np.int64)
+            events = body[at:end].view(POLARITY)  # (N,): data, timestamp
+            data = events["data"].astype(np.int64)
             valid = (data & 1) == 1
             data = data[valid]
-            t = (int(head["overflow"]) << 31) | words[valid, 1].astype(np.int64)
+            t = (int(head["overflow"]) << 31) | signed_times(events["t"][valid])
             yield events_of(t, data >> 17, (data >> 2) & 0x7FFF, (data >> 1) & 1)
         at = end

@@ -200,7 +200,8 @@ def _filled(count: int, *parts: Iterable[np.ndarray]) -> np.ndarray:
 
 
 def sensor_of(path: str | Path, events: np.ndarray) -> tuple[int, int]:
-    """(height, width): the sensor the file states, else the span of its events."""
+    """(height, width): the sensor the file states, else the span of ``events``: all of the
+    recording's (every chunk), or those that bound their x and y."""
     stated = recording_sensor_size(path)
     if stated:
         return stated
