@@ -36,9 +36,13 @@ Draw = Callable[[], "plt.Figure | None"]
 
 def _cells(runs: pd.DataFrame, labels: list[str]) -> list[tuple[str, pd.DataFrame]]:
     """(label, runs) per cell: the runs a line or bar may average. Cells whose ``labels`` agree
-    (they differ in another setting) are told apart by their cell, as the tables' Cell column."""
+    (they differ in another setting) are told apart by their cell, as the tables' Cell column;
+    a label no record has (a record without choices) is shown as '?'."""
     found = [
-        (" / ".join(str(group[label].iloc[0]) for label in labels), group)
+        (
+            " / ".join(str(group[label].iloc[0]) if label in group else "?" for label in labels),
+            group,
+        )
         for _, group in runs.groupby(CELL_KEYS, dropna=False, sort=True)
     ]
     names = [name for name, _ in found]
