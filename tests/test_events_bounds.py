@@ -11,6 +11,7 @@ import re
 import struct
 import threading
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -212,7 +213,11 @@ BAD_VALUES = {  # a file whose values numpy would narrow silently: (file, its on
 @pytest.mark.filterwarnings("error")  # numpy's RuntimeWarning on a cast it cannot hold, too
 @pytest.mark.parametrize("case", BAD_VALUES)
 def test_a_value_beyond_its_field_is_refused_by_its_value(tmp_path, case) -> None:
-    make, problem = BAD_VALUES[case]
+    _refused_in_one_line(*BAD_VALUES[case], tmp_path)
+
+
+def _refused_in_one_line(make: Callable[[Path], Path], problem: str, tmp_path: Path) -> None:
+    """The file ``make`` writes is refused by :func:`read_recording`, naming ``problem``."""
     path = make(tmp_path)
     with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
         read_recording(path)
@@ -420,11 +425,7 @@ BAD_COLUMNS = {  # (file, its one line): each was a TypeError or AttributeError 
 
 @pytest.mark.parametrize("case", BAD_COLUMNS)
 def test_columns_that_are_not_1d_of_one_length_are_refused_by_name(tmp_path, case) -> None:
-    make, problem = BAD_COLUMNS[case]
-    path = make(tmp_path)
-    with pytest.raises(RecordingError, match=re.escape(problem)) as caught:
-        read_recording(path)
-    _one_line(caught, path)
+    _refused_in_one_line(*BAD_COLUMNS[case], tmp_path)
 
 
 # 7: AEDAT 2.0's header ends where jAER's does, or at the first line that is not one
