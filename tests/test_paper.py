@@ -252,11 +252,15 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
     ]  # fmt: skip
 
 
-def _atari_record(folder: Path, inputs: str, seed: int, budget: int, reached: int) -> None:
-    """A finished full-scale Pong run of ``budget`` env steps whose training score climbs from -21
-    to 19 at ``reached`` env steps (its history beside the record)."""
+def _atari_record(
+    folder: Path, inputs: str, seed: int, budget: int, reached: int,
+    game: str = "Pong", scores: tuple[float, float] = (-21.0, 19.0),
+) -> None:  # fmt: skip
+    """A finished full-scale run of ``game`` for ``budget`` env steps whose training score steps
+    from ``scores[0]`` to ``scores[1]`` at ``reached`` env steps (its history beside the
+    record)."""
     folder.mkdir(parents=True)
-    history = [{"env_steps": s, "train/score": -21.0 if s < reached else 19.0}
+    history = [{"env_steps": s, "train/score": scores[0] if s < reached else scores[1]}
                for s in range(0, budget + 1, 100_000)]  # fmt: skip
     (folder / "history.json").write_text(json.dumps(history))
     record = {
@@ -265,7 +269,7 @@ def _atari_record(folder: Path, inputs: str, seed: int, budget: int, reached: in
         "ended_at": "2026-12-05T10:00:00+0000", "machine": {"cpu": "test CPU", "cpu_count": 2},
         "data": {"source": "emulator", "fingerprint": "ale"},
         "config": {"seed": seed, "task": {"env_steps": budget,
-                                          "env": {"game": "Pong", "inputs": inputs}}},
+                                          "env": {"game": game, "inputs": inputs}}},
         "metrics": {"eval/mean": 15.0 + seed, "eval/max": 21.0, "eval/min": 10.0,
                     "eval/plays": 30, "train/fps": 900.0},
     }  # fmt: skip
@@ -305,7 +309,7 @@ def test_the_steps_to_a_score_rows_run_from_the_smallest_budget_up(tmp_path) -> 
 
 
 def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
-    from edr.report.atari import steps_to_score
+    from edr.report.atari_curves import steps_to_score
 
     rows = [
         {"env_steps": 1000 * i, "train/score": s} for i, s in enumerate([None, -21, 5, 18.5, 19])
@@ -318,7 +322,7 @@ def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
 
 
 def test_the_sentence_on_figure_5as_speedup_follows_the_runs_spread() -> None:
-    from edr.report.atari import faster_verdict
+    from edr.report.atari_curves import faster_verdict
     from edr.report.published import load_published
 
     m = 1_000_000
@@ -333,6 +337,40 @@ def test_the_sentence_on_figure_5as_speedup_follows_the_runs_spread() -> None:
     overlapping = {0.0: [int(1.5 * m), int(2.5 * m), 3 * m], 18.0: [m, m, m]}
     assert ": undecided at this spread" in faster_verdict(fdr, overlapping, paper)
     assert "undecided: no score" in faster_verdict({0.0: [None]}, {0.0: [m]}, paper)
+
+
+def test_centipedes_curves_are_compared_at_equal_env_steps(tmp_path) -> None:
+    """Figure 5b's "1.8x higher reward": each input's training score read every million env
+    steps, its own steps-to columns (Centipede's scores, not Pong's), and the sentence judged
+    at the most env steps every run reached."""
+    m = 1_000_000
+    for inputs, high in (("fdr", 3000.0), ("fdr_edr", 6300.0)):
+        for seed in (0, 1):
+            _atari_record(tmp_path / "runs" / f"{inputs}{seed}", inputs, seed, 5 * m, 2 * m,
+                          game="Centipede", scores=(2000.0, high + 100 * seed))  # fmt: skip
+    tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
+    text = (tmp_path / "paper" / "table1_atari.md").read_text()
+    assert "| Game | Input | Budget | 2500 | 3500 | 5000 | 8300 |" in text
+    lines = [_cells(line) for line in text.splitlines() if line.startswith("| ")]
+    rows = {r[0]: r for r in lines if r[0].endswith("0M")}  # the equal-steps table's
+    assert rows["1.00M"][1:] == ["2,000 ± 0 (2)", "2,000 ± 0 (2)", "1.00x"]
+    assert rows["5.00M"][3] == "2.08x"  # 6,350 / 3,050
+    assert (
+        'Figure 5b\'s "1.8x higher reward" (Centipede, FDR+EDR over FDR): supported at '
+        "5.00M env steps" in text
+    )
+    assert "Figure 5a" not in text  # Pong's sentence only where Pong ran
+
+
+def test_the_sentence_on_figure_5bs_ratio_follows_the_runs_spread() -> None:
+    from edr.report.atari_curves import ratio_verdict
+
+    said = ratio_verdict([1000.0, 1200.0], [2200.0, 2400.0], 1.8, 5_000_000)
+    assert ": supported at 5.00M env steps" in said and "1.83 - 2.40x run against run" in said
+    assert ": contradicted" in ratio_verdict([1000.0, 1200.0], [1100.0, 1700.0], 1.8, 1)
+    assert ": undecided at this spread" in ratio_verdict([1000.0, 1200.0], [1500.0, 2400.0], 1.8, 1)
+    assert "fewer than 2 runs" in ratio_verdict([1000.0], [2400.0, 2500.0], 1.8, 1)
+    assert "at or below 0" in ratio_verdict([0.0, 10.0], [2400.0, 2500.0], 1.8, 1)
 
 
 def test_a_caption_names_the_revisions_with_uncommitted_changes() -> None:

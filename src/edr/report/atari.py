@@ -9,121 +9,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from edr.report.atari_curves import INPUT_NAMES, millions, steps_to_targets_block
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, placeable, run_attempts, run_history, unfinished
-
-# A record's task.env.inputs as Table 1 names it (events alone, "edr", is beyond the paper).
-INPUT_NAMES = {"fdr": "FDR", "fdr_edr": "FDR+EDR", "edr": "EDR"}
+from edr.report.runs import cells, finished, placeable, run_attempts, unfinished
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
 FPS = "metrics.train/fps"  # the training loop's env steps/s over a run's last attempt
 # Table 1's budget per game in env steps (Appendix C: Pong stops at 30M, the other games at 80M)
 PAPER_ENV_STEPS = {"Pong": 30_000_000}
 PAPER_ENV_STEPS_OTHERWISE = 80_000_000
-# Scores whose first crossing in training Table 1 reports per run (Figure 5a's Pong 18 the last;
-# the paper's env steps to it: published.yaml's figure5_atari.pong_env_steps_to_18)
-TARGET_SCORES = {"Pong": (-10.0, 0.0, 10.0, 18.0)}
-
-
-def steps_to_score(record: str, target: float) -> int | None:
-    """The env steps after which a run's training score (the mean of its last 20 episodes,
-    ``train/score`` in its history.json) first reached ``target``; None if it never did."""
-    return next(
-        (
-            int(r["env_steps"])
-            for r in run_history(record)
-            if (r.get("train/score") or -np.inf) >= target
-        ),
-        None,
-    )
-
-
-def _reached(steps: list[int | None]) -> str:
-    """One cell: how many runs reached a score, and their env steps (mean ± std, min - max)."""
-    got = [s / 1e6 for s in steps if s is not None]
-    head = f"{len(got)} of {len(steps)}"
-    if not got:
-        return head
-    spread = f" ± {np.std(got, ddof=1):.2f}" if len(got) > 1 else ""
-    return f"{head}: {np.mean(got):.2f}M{spread} ({min(got):.2f} - {max(got):.2f})"
-
-
-def _steps_to_targets_block(done: pd.DataFrame, published: dict[str, Any]) -> str:
-    """Markdown: per game with targets (Pong: -10, 0, 10, 18) and input, the env steps its runs
-    took to reach each in training, then the sentence on Figure 5a's "1.7x faster"."""
-    paper = lookup(published, "figure5_atari", "pong_env_steps_to_18") or {}
-    lines, steps = [], {}
-    groups = done.groupby(["budget", "game", "input"])
-    for (budget, game, inputs), group in sorted(
-        groups, key=lambda g: (_millions(g[0][0]), *g[0][1:])
-    ):
-        targets = TARGET_SCORES.get(game)
-        if not targets:
-            continue
-        steps[budget, game, inputs] = {
-            t: [steps_to_score(r, t) for r in group["record"]] for t in targets
-        }
-        cells_ = " | ".join(_reached(s) for s in steps[budget, game, inputs].values())
-        lines.append(f"| {game} | {INPUT_NAMES.get(inputs, inputs)} | {budget} | {cells_} |")
-    if not lines:
-        return ""
-    targets = " | ".join(f"{t:g}" for t in TARGET_SCORES["Pong"])
-    block = [
-        "Env steps to a training score (the mean of the last 20 episodes) per run: how many "
-        "runs reached it within their budget, and when (mean ± std over those runs, min - max):",
-        "",
-        f"| Game | Input | Budget | {targets} |",
-        "|---|---|---|" + "---|" * len(TARGET_SCORES["Pong"]),
-        *lines,
-    ]
-    for budget in sorted({b for b, _, _ in steps}, key=_millions):
-        if {(budget, "Pong", "fdr"), (budget, "Pong", "fdr_edr")} <= steps.keys():
-            said = faster_verdict(
-                steps[budget, "Pong", "fdr"], steps[budget, "Pong", "fdr_edr"], paper
-            )
-            block += ["", f"At {budget} env steps: {said}"]
-    return "\n".join(block)
-
-
-def _millions(budget: str) -> float:
-    """``"5M"`` -> 5.0, for ordering budgets; an unknown one (``"?"``) last."""
-    return float(budget.removesuffix("M")) if budget != "?" else float("inf")
-
-
-def faster_verdict(
-    fdr: dict[float, list[int | None]],
-    fdr_edr: dict[float, list[int | None]],
-    paper: dict[str, float],
-) -> str:
-    """One sentence on Figure 5a's "1.7x faster" (``paper``: input -> the env steps after which
-    its Pong score reached 18, published.yaml's: FDR+EDR 3M, FDR 5M): judged at the highest
-    score every run of both inputs reached, supported when every FDR+EDR run got there before
-    every FDR run, contradicted when none did, undecided otherwise."""
-    claim = "Figure 5a's claim (FDR+EDR reaches Pong's score 18 sooner than FDR)"
-    if paper.get("fdr") and paper.get("fdr_edr"):
-        claim = (
-            f"Figure 5a's \"{paper['fdr'] / paper['fdr_edr']:.1f}x faster\" (Pong's score 18 at "
-            f"{paper['fdr_edr'] / 1e6:g}M env steps with FDR+EDR, {paper['fdr'] / 1e6:g}M with FDR)"
-        )
-    common = [t for t in fdr if all(s is not None for s in (*fdr[t], *fdr_edr[t]))]
-    if not common or min(len(fdr[common[-1]]), len(fdr_edr[common[-1]])) < 2:
-        return f"{claim}: undecided: no score that at least 2 runs of each input all reached."
-    target = common[-1]
-    ours, theirs = [s / 1e6 for s in fdr_edr[target]], [s / 1e6 for s in fdr[target]]
-    ratio = np.mean(theirs) / np.mean(ours)
-    if max(ours) < min(theirs):
-        verdict = "supported"
-    elif min(ours) >= max(theirs):
-        verdict = "contradicted"
-    else:
-        verdict = "undecided at this spread (the runs' ranges overlap)"
-    at = "" if target == 18 else f" (judged at {target:g}, the highest score every run reached)"
-    return (
-        f"{claim}: {verdict}{at}: FDR+EDR took {min(ours):.2f} - {max(ours):.2f}M env steps "
-        f"({len(ours)} runs), FDR {min(theirs):.2f} - {max(theirs):.2f}M ({len(theirs)} runs), "
-        f"{ratio:.1f}x by the means."
-    )
 
 
 def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
@@ -190,7 +85,7 @@ def _gain_block(grouped: pd.DataFrame, published: dict[str, Any]) -> str:
     paper = lookup(published, "table1_atari", "games") or {}
     paper_games = {g: {i: dict(cols) for i, cols in by.items()} for g, by in paper.items()}
     printed = lookup(published, "table1_atari", "avg_gain_percent") or {}
-    budgets = sorted(grouped["budget"].unique(), key=_millions)
+    budgets = sorted(grouped["budget"].unique(), key=millions)
     rows = [
         ("the paper, as printed", printed),
         ("the paper, recomputed from its rows", average_gains(paper_games)),
@@ -358,7 +253,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             }
         )
         extra = iqm_table(normalised_scores(done, published))
-    parts = (extra, _steps_to_targets_block(done, published), _gain_block(grouped, published))
+    parts = (extra, steps_to_targets_block(done, published), _gain_block(grouped, published))
     extra = "\n\n".join(part for part in parts if part)
     return Table(
         "table1_atari",
