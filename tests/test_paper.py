@@ -362,6 +362,28 @@ def test_centipedes_curves_are_compared_at_equal_env_steps(tmp_path) -> None:
     assert "Figure 5a" not in text  # Pong's sentence only where Pong ran
 
 
+def test_table1_names_the_settings_its_rows_differ_in(tmp_path) -> None:
+    """Pong at entropy 0.02 in float32 (a record from before the precision setting), Centipede
+    at 0.05 in bfloat16: the notes name both settings and which rows ran each value."""
+    m = 1_000_000
+    for game, entropy, precision in (("Pong", 0.02, None), ("Centipede", 0.05, "bfloat16")):
+        folder = tmp_path / "runs" / game
+        _atari_record(folder, "fdr", 0, 5 * m, m, game=game)
+        record = json.loads((folder / "run.json").read_text())
+        record["config"]["task"]["loss"] = {"entropy_coeff": entropy}
+        record["fingerprint"] = record["cell"] = game
+        if precision:
+            record["metrics"]["train/precision"] = precision
+        (folder / "run.json").write_text(json.dumps(record))
+    tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
+    text = (tmp_path / "paper" / "table1_atari.md").read_text()
+    assert (
+        "Settings that differ between rows: entropy weight (`task.loss.entropy_coeff`) 0.02: "
+        "Pong FDR at 5M; 0.05: Centipede FDR at 5M. precision (`train/precision`) bfloat16: "
+        "Centipede FDR at 5M; float32: Pong FDR at 5M." in text
+    )
+
+
 def test_the_sentence_on_figure_5bs_ratio_follows_the_runs_spread() -> None:
     from edr.report.atari_curves import ratio_verdict
 

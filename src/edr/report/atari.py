@@ -13,12 +13,23 @@ from edr.report.atari_curves import INPUT_NAMES, millions, steps_to_targets_bloc
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
 from edr.report.runs import cells, finished, placeable, run_attempts, unfinished
+from edr.store.identity import ADDED_DEFAULTS
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
 FPS = "metrics.train/fps"  # the training loop's env steps/s over a run's last attempt
 # Table 1's budget per game in env steps (Appendix C: Pong stops at 30M, the other games at 80M)
 PAPER_ENV_STEPS = {"Pong": 30_000_000}
 PAPER_ENV_STEPS_OTHERWISE = 80_000_000
+# Settings Table 1's notes name wherever its rows differ in them (each row is one cell: runs that
+# share every setting but the seed), and the value of a record that predates the setting.
+NAMED_SETTINGS = {
+    "config.task.loss.entropy_coeff": ("entropy weight", None),
+    "config.task.optim.lr_decay_env_steps": ("learning rate decayed to 0 at (env steps)", None),
+    "config.task.env.num_envs": ("envs", None),
+    "metrics.train/precision": (
+        "precision", ADDED_DEFAULTS["edr.rl.settings.NetworkSettings"]["precision"],
+    ),
+}  # fmt: skip
 
 
 def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
@@ -219,6 +230,35 @@ def _evaluation_note(done: pd.DataFrame) -> str:
     )
 
 
+def _setting_text(value: Any) -> str:
+    """A setting's value as the notes write it: ``30M`` for 30,000,000, ``0.02``, ``bfloat16``."""
+    if isinstance(value, str | bool) or not np.isscalar(value):
+        return str(value)
+    return f"{value / 1e6:g}M" if abs(value) >= 1e6 else f"{value:g}"
+
+
+def _settings_note(done: pd.DataFrame) -> str:
+    """The :data:`NAMED_SETTINGS` in which the rows differ, each value with the rows that ran
+    it; empty where every row ran the same."""
+    said = []
+    for column, (name, before) in NAMED_SETTINGS.items():
+        given = done.reindex(columns=[column]).iloc[:, 0]
+        rows: dict[str, set[str]] = {}
+        for value, game, inputs, budget in zip(
+            given, done["game"], done["input"], done["budget"], strict=True
+        ):
+            shown = before if pd.isna(value) else value
+            if shown is not None:
+                text = _setting_text(shown)
+                rows.setdefault(text, set()).add(
+                    f"{game} {INPUT_NAMES.get(inputs, inputs)} at {budget}"
+                )
+        if len(rows) > 1:
+            values = "; ".join(f"{v}: {', '.join(sorted(r))}" for v, r in sorted(rows.items()))
+            said.append(f"{name} (`{column.split('.', 1)[1]}`) {values}")
+    return "Settings that differ between rows: " + ". ".join(said) + "." if said else ""
+
+
 def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done, unplaced = placeable(atari_runs(runs), ["game", "input"])
     grouped = cells(done, [*SCORES.values(), FPS], ["game", "input", "budget"])
@@ -261,12 +301,17 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         frame,
         done,
         notes=[
-            "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a run "
-            "(30 full games at full scale), each then averaged over seeds (± std).",
-            _evaluation_note(done),
-            _budget_note(done),
-            "Env steps/s: the training loop's throughput (`train/fps`, from the start of a "
-            "run's last attempt), on the machine named, with whatever else ran beside it.",
+            note
+            for note in (
+                "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a "
+                "run (30 full games at full scale), each then averaged over seeds (± std).",
+                _evaluation_note(done),
+                _budget_note(done),
+                _settings_note(done),
+                "Env steps/s: the training loop's throughput (`train/fps`, from the start of a "
+                "run's last attempt), on the machine named, with whatever else ran beside it.",
+            )
+            if note
         ],
         unfinished=unfinished(runs, "atari", unplaced),
         extra=extra,
