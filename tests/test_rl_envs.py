@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import multiprocessing
+import signal
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
+from edr.checks import interrupts
 from edr.representations import EDR
 from edr.rl.envs import EnvPoolAtari, gym_atari, gym_image_env, make_atari_env
 from edr.rl.transform import ObservationFrame
@@ -201,6 +206,32 @@ def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
         make_atari_env("EdrCatch-v0", preset="none", module="catch_game", backend="envpool")
     with pytest.raises(ValueError, match="RGB image observations"):
         gym_image_env("CartPole-v1")
+
+
+def _sigterm_after_a_serial_env(tests: str, answer: Any) -> None:
+    """In a child process (as a parallel sweep's job is): SIGTERM's handler after a serial env
+    of two games is made, stepped and closed."""
+    sys.path.insert(0, tests)
+    interrupts.install()
+    env = make_atari_env("EdrCatch-v0", preset="none", module="catch_game", num_envs=2,
+                         backend="serial", edr=None, fdr="gray")  # fmt: skip
+    env.rollout(2)
+    env.close()
+    answer.put(signal.getsignal(signal.SIGTERM) is interrupts._on_signal)
+
+
+def test_a_serial_env_in_a_child_process_leaves_its_stop_signals_alone() -> None:
+    """A job of ``hydra/launcher=parallel`` runs in a worker process; its serial env's games once
+    set SIGTERM and Ctrl-C to be ignored there (only a ParallelEnv's own workers should), so
+    the sweep's stop never reached a running Atari job and it trained on."""
+    context = multiprocessing.get_context("spawn")
+    answer = context.Queue()
+    child = context.Process(
+        target=_sigterm_after_a_serial_env, args=(str(Path(__file__).parent), answer)
+    )
+    child.start()
+    child.join(120)
+    assert child.exitcode == 0 and answer.get(timeout=5) is True
 
 
 @pytest.mark.parametrize("mode", ["serial", "envpool"])  # pixels interleaved, pixels planar

@@ -26,7 +26,6 @@ import difflib
 import functools
 import hashlib
 import importlib
-import multiprocessing
 import os
 import re
 from typing import Annotated, Any, Literal, get_args
@@ -133,13 +132,20 @@ def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
 
 
 def _torchrl_gym(
-    game: str, preset: Preset, train: bool, life_loss: bool, module: str | None
+    game: str,
+    preset: Preset,
+    train: bool,
+    life_loss: bool,
+    module: str | None,
+    parent: int | None = None,
 ) -> GymWrapper:
-    """Runs in the worker process of a ParallelEnv: the module registers the env there too, and
-    the worker ignores Ctrl-C and SIGTERM, which reach it with its parent's process group: the
-    parent stops (and checkpoints), then closes its workers. In the main process (a serial env,
-    torchrl's look at the specs) nothing about signals changes."""
-    if multiprocessing.parent_process() is not None:
+    """One env. Made for a ParallelEnv (``parent``: the pid of the process that makes it), in a
+    worker process of its own the module registers the env there too, and the worker ignores
+    Ctrl-C and SIGTERM, which reach it with its parent's process group: the parent stops (and
+    checkpoints), then closes its workers. Elsewhere (the parent's own look at the specs, a
+    serial env) nothing about signals changes, whatever process it runs in: a job of a parallel
+    sweep is a child process too, and must stop on them."""
+    if parent is not None and os.getpid() != parent:
         interrupts.ignore_stop_signals()
     if preset == "none":
         return GymWrapper(gym_image_env(game, module), from_pixels=False)
@@ -324,7 +330,8 @@ def make_atari_env(
     elif backend == "serial":
         base = _SerialEnv(num_envs, factory)
     elif backend == "parallel":
-        base = _ParallelEnv(num_envs, factory, mp_start_method="spawn")
+        in_workers = functools.partial(factory, parent=os.getpid())
+        base = _ParallelEnv(num_envs, in_workers, mp_start_method="spawn")
     elif backend == "envpool":
         base = EnvPoolAtari(game, num_envs, preset, train, life_loss)
     else:
