@@ -308,5 +308,6 @@ def test_the_screening_table_reads_scores_and_first_steps_from_a_history(tmp_pat
     row = screening_rows(runs).iloc[0]
     assert row["Steps to -15"] == "0.30M" and row["Steps to 0"] == "0.60M"
     assert row["Score @0.25M"] == -20.5 and row["Score @0.5M"] == -14.0
-    assert np.isnan(row["Score @1M"])  # the run did not get that far
+    assert row["Score @1M"] is None  # the run did not get that far
+    assert row["Precision"] == "float32"  # a record from before the setting
     assert row["Optimizer"] == "adam 0.0007"

@@ -28,33 +28,32 @@ EQUAL_STEPS_GAMES = ("Centipede",)
 M = 1_000_000
 
 
-def steps_to_score(record: str, target: float) -> int | None:
-    """The env steps after which a run's training score (the mean of its last 20 episodes,
-    ``train/score`` in its history.json) first reached ``target``; None if it never did."""
+def first_reaching(history: list[dict[str, Any]], target: float) -> int | None:
+    """The env steps of the first ``history`` row whose training score (the mean of the last 20
+    episodes, ``train/score``) is at least ``target``; None if none is."""
     return next(
-        (
-            int(r["env_steps"])
-            for r in run_history(record)
-            if (r.get("train/score") or -np.inf) >= target
-        ),
+        (int(r["env_steps"]) for r in history if (r.get("train/score") or -np.inf) >= target),
         None,
     )
 
 
-def score_at(record: str, env_steps: int) -> float | None:
-    """A run's training score at ``env_steps``: that of its last history row at or before them
-    (None where no row there has a score)."""
+def steps_to_score(record: str, target: float) -> int | None:
+    """The env steps after which a run's training score first reached ``target`` (its
+    history.json beside the record); None if it never did."""
+    return first_reaching(run_history(record), target)
+
+
+def score_at(history: list[dict[str, Any]], env_steps: int) -> float | None:
+    """The training score at ``env_steps``: that of the last ``history`` row at or before them;
+    None where the history stops short of them or holds no score there."""
+    if not history or history[-1]["env_steps"] < env_steps:
+        return None
     scores = [
         r["train/score"]
-        for r in run_history(record)
+        for r in history
         if r["env_steps"] <= env_steps and r.get("train/score") is not None
     ]
     return float(scores[-1]) if scores else None
-
-
-def last_env_steps(record: str) -> int:
-    """The env steps of a run's last history row (0 for a run without a history)."""
-    return max((int(r["env_steps"]) for r in run_history(record)), default=0)
 
 
 def _reached(steps: list[int | None]) -> str:
@@ -165,8 +164,8 @@ def equal_steps_block(
     """Markdown: ``game``'s training score of each input at equal env steps (every million up to
     the most that every run reached: mean ± std over runs, and FDR+EDR's over FDR's by the
     means), then the sentence on Figure 5b's "1.8x higher reward" at the last of them."""
-    fdr, fdr_edr = records["fdr"], records["fdr_edr"]
-    reached = min(last_env_steps(r) for r in (*fdr, *fdr_edr))
+    histories = {i: [run_history(r) for r in records[i]] for i in ("fdr", "fdr_edr")}
+    reached = min(h[-1]["env_steps"] if h else 0 for hs in histories.values() for h in hs)
     points = [*range(M, reached, M), reached] if reached else []
     lines = [
         f"{game} at {budget} env steps, the training score at equal env steps (mean ± std over "
@@ -175,18 +174,15 @@ def equal_steps_block(
         "| Env steps | FDR | FDR+EDR | Ratio |",
         "|---|---|---|---:|",
     ]
-    for at in points:
-        a = [s for r in fdr if (s := score_at(r, at)) is not None]
-        b = [s for r in fdr_edr if (s := score_at(r, at)) is not None]
+    at_points = {
+        i: [[s for h in hs if (s := score_at(h, at)) is not None] for at in points]
+        for i, hs in histories.items()
+    }
+    for at, a, b in zip(points, at_points["fdr"], at_points["fdr_edr"], strict=True):
         ratio = f"{np.mean(b) / np.mean(a):.2f}x" if a and b and np.mean(a) > 0 else "—"
         lines.append(f"| {at / M:.2f}M | {_spread(a)} | {_spread(b)} | {ratio} |")
-    last = points[-1] if points else 0
-    said = ratio_verdict(
-        [s for r in fdr if (s := score_at(r, last)) is not None],
-        [s for r in fdr_edr if (s := score_at(r, last)) is not None],
-        paper_ratio,
-        last,
-    )
+    last = {i: scores[-1] if scores else [] for i, scores in at_points.items()}
+    said = ratio_verdict(last["fdr"], last["fdr_edr"], paper_ratio, points[-1] if points else 0)
     return "\n".join([*lines, "", said])
 
 

@@ -13,23 +13,26 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from edr.report.atari_curves import first_reaching, score_at
 from edr.report.runs import load_runs, run_history
 from edr.store.atomic import write_text_atomic
 from edr.store.checkpoints import CHECKPOINT, load_checkpoint
+from edr.store.identity import ADDED_DEFAULTS
 
 MILESTONES = (250_000, 500_000, 1_000_000, 1_500_000)  # env steps at which the score is shown
 TARGETS = (-15.0, 0.0)  # training scores whose first env step is shown
 RANDOM_PLAY = -20.7  # Pong's random play (the paper's reference scores)
 
 
-def _score_at(history: list[dict], steps: int) -> float:
-    """The training score (mean of the last 20 episodes) of the last row at or before ``steps``."""
-    rows = [r for r in history if r["env_steps"] <= steps and "train/score" in r]
-    return rows[-1]["train/score"] if rows and history[-1]["env_steps"] >= steps else np.nan
+def _precision(run: pd.Series) -> str:
+    """The precision a run trained in; a record from before the setting: float32."""
+    for key in ("metrics.train/precision", "config.task.network.precision"):
+        if pd.notna(run.get(key)):
+            return str(run[key])
+    return ADDED_DEFAULTS["edr.rl.settings.NetworkSettings"]["precision"]
 
 
-def _first_reaching(history: list[dict], target: float) -> str:
-    steps = next((r["env_steps"] for r in history if r.get("train/score", -np.inf) >= target), None)
+def _steps(steps: int | None) -> str:
     return f"{steps / 1e6:.2f}M" if steps is not None else "—"
 
 
@@ -61,12 +64,14 @@ def screening_rows(runs: pd.DataFrame) -> pd.DataFrame:
             "Input norm": get("config.task.network.input_norm", "raw") or "raw",
             "Init": get("config.task.network.init"),
             "Optimizer": f"{optimizer} {lr:g}" if pd.notna(lr) and lr else f"{optimizer} (default lr)",
+            "Entropy weight": get("config.task.loss.entropy_coeff"),
+            "Precision": _precision(run),
             "Input": get("config.task.env.inputs"),
             "Seed": get("seed"),
             "Status": get("status"),
             "Env steps": f"{history[-1]['env_steps'] / 1e6:.2f}M",
-            **{f"Score @{m / 1e6:g}M": _score_at(history, m) for m in MILESTONES},
-            **{f"Steps to {t:g}": _first_reaching(history, t) for t in TARGETS},
+            **{f"Score @{m / 1e6:g}M": score_at(history, m) for m in MILESTONES},
+            **{f"Steps to {t:g}": _steps(first_reaching(history, t)) for t in TARGETS},
             "Entropy": _last(history, "train/entropy"),
             "Logit spread": _last(history, "train/logit_spread"),
             "conv1 dead": _last(history, "dead/trunk.1"),
