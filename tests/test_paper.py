@@ -350,7 +350,7 @@ def test_centipedes_curves_are_compared_at_equal_env_steps(tmp_path) -> None:
                           game="Centipede", scores=(2000.0, high + 100 * seed))  # fmt: skip
     tables.main(["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "paper")])
     text = (tmp_path / "paper" / "table1_atari.md").read_text()
-    assert "| Game | Input | Budget | 2500 | 3500 | 5000 | 8300 |" in text
+    assert "| Game | Input | Budget | 4000 | 5000 | 6500 | 8300 |" in text
     lines = [_cells(line) for line in text.splitlines() if line.startswith("| ")]
     rows = {r[0]: r for r in lines if r[0].endswith("0M")}  # the equal-steps table's
     assert rows["1.00M"][1:] == ["2,000 ± 0 (2)", "2,000 ± 0 (2)", "1.00x"]
