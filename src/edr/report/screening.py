@@ -65,6 +65,7 @@ def screening_rows(runs: pd.DataFrame) -> pd.DataFrame:
             "Init": get("config.task.network.init"),
             "Optimizer": f"{optimizer} {lr:g}" if pd.notna(lr) and lr else f"{optimizer} (default lr)",
             "Entropy weight": get("config.task.loss.entropy_coeff"),
+            "Critic weight": get("config.task.loss.critic_coeff"),
             "Precision": _precision(run),
             "Input": get("config.task.env.inputs"),
             "Seed": get("seed"),
