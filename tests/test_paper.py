@@ -309,7 +309,11 @@ def test_the_steps_to_a_score_rows_run_from_the_smallest_budget_up(tmp_path) -> 
 
 
 def test_steps_to_a_score_read_from_a_runs_history(tmp_path) -> None:
-    from edr.report.atari_curves import steps_to_score
+    from edr.report.atari_curves import first_reaching
+    from edr.report.runs import run_history
+
+    def steps_to_score(record: str, target: float) -> int | None:
+        return first_reaching(run_history(record), target)
 
     rows = [
         {"env_steps": 1000 * i, "train/score": s} for i, s in enumerate([None, -21, 5, 18.5, 19])

@@ -38,12 +38,6 @@ def first_reaching(history: list[dict[str, Any]], target: float) -> int | None:
     )
 
 
-def steps_to_score(record: str, target: float) -> int | None:
-    """The env steps after which a run's training score first reached ``target`` (its
-    history.json beside the record); None if it never did."""
-    return first_reaching(run_history(record), target)
-
-
 def score_at(history: list[dict[str, Any]], env_steps: int) -> float | None:
     """The training score at ``env_steps``: that of the last ``history`` row at or before them;
     None where the history stops short of them or holds no score there."""
@@ -73,12 +67,15 @@ def millions(budget: str) -> float:
 
 
 def _by_budget(done: pd.DataFrame, game: str) -> dict[str, dict[str, list[str]]]:
-    """budget -> input -> the records of ``game``'s finished runs, budgets from the smallest."""
+    """budget -> input -> the histories of ``game``'s finished runs (each read once, in the
+    order of their records), budgets from the smallest."""
     rows = done[done["game"] == game]
-    out: dict[str, dict[str, list[str]]] = {}
+    out: dict[str, dict[str, list[list[dict[str, Any]]]]] = {}
     for budget in sorted(rows["budget"].unique(), key=millions):
         at = rows[rows["budget"] == budget]
-        out[budget] = {i: sorted(g["record"]) for i, g in at.groupby("input")}
+        out[budget] = {
+            i: [run_history(r) for r in sorted(g["record"])] for i, g in at.groupby("input")
+        }
     return out
 
 
@@ -97,8 +94,8 @@ def steps_to_targets_block(done: pd.DataFrame, published: dict[str, Any]) -> str
         ]
         steps: dict[tuple[str, str], dict[float, list[int | None]]] = {}
         for budget, by_input in by_budget.items():
-            for inputs, records in by_input.items():
-                steps[budget, inputs] = {t: [steps_to_score(r, t) for r in records]
+            for inputs, histories in by_input.items():
+                steps[budget, inputs] = {t: [first_reaching(h, t) for h in histories]
                                          for t in targets}  # fmt: skip
                 cells_ = " | ".join(_reached(s) for s in steps[budget, inputs].values())
                 lines.append(
@@ -160,12 +157,15 @@ def faster_verdict(
 
 
 def equal_steps_block(
-    game: str, budget: str, records: dict[str, list[str]], paper_ratio: float | None
+    game: str,
+    budget: str,
+    histories: dict[str, list[list[dict[str, Any]]]],
+    paper_ratio: float | None,
 ) -> str:
     """Markdown: ``game``'s training score of each input at equal env steps (every million up to
     the most that every run reached: mean ± std over runs, and FDR+EDR's over FDR's by the
     means), then the sentence on Figure 5b's "1.8x higher reward" at the last of them."""
-    histories = {i: [run_history(r) for r in records[i]] for i in ("fdr", "fdr_edr")}
+    histories = {i: histories[i] for i in ("fdr", "fdr_edr")}  # (runs of each input)
     reached = min(h[-1]["env_steps"] if h else 0 for hs in histories.values() for h in hs)
     points = [*range(M, reached, M), reached] if reached else []
     lines = [
