@@ -8,8 +8,6 @@
 # Extra arguments are passed to edr-run (say threads=1). Records: results/learning/table1_<game>.
 # SEEDS picks the seeds (default "0 1 2"): on a machine with cores to spare, two lanes of one game
 # can run beside each other, e.g. SEEDS="0 2" and SEEDS=1, never the same seed twice.
-# Every lane runs in float32, as Table 1's Pong and Centipede runs did before bfloat16 became
-# task.network.precision's default (auto), so that Table 1's rows share one precision.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 game="${1:?usage: sweeps/table1_lane.sh GAME [edr-run overrides...]}"
@@ -17,6 +15,5 @@ shift
 EDR_RUN="${EDR_RUN:-.venv/bin/edr-run}"
 for seed in ${SEEDS:-0 1 2}; do
   "$EDR_RUN" -m experiment=table1_atari "game=$game" "seed=$seed" task.env.inputs=fdr,fdr_edr \
-    task.env_steps=5000000 task.network.precision=float32 \
-    "hydra.sweep.dir=results/learning/table1_$game" "$@"
+    task.env_steps=5000000 "hydra.sweep.dir=results/learning/table1_$game" "$@"
 done
