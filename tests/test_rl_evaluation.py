@@ -147,3 +147,19 @@ def test_a_resumed_auto_run_keeps_the_precision_its_checkpoint_names() -> None:
     assert "train/precision_float32_ms" not in chosen  # not timed again
     plain = _precision(network, NetworkSettings(precision="float32"), None, 8, (3, 84, 84), 4)
     assert network.precision == "float32" == plain["train/precision"]
+
+
+def test_a_bfloat16_network_is_rebuilt_from_its_saved_arguments() -> None:
+    # load_network (edr-eval of a finished run) builds the network with the precision it trained
+    # in; its constructor's probe of the trunk ran outside autocast and failed in bfloat16
+    trained = _network()
+    trained.precision = "bfloat16"
+    rebuilt = PAACNetwork(12, 3, "none", init="fan_in", input_norm="batchnorm", frames=4,
+                          precision="bfloat16")  # fmt: skip
+    rebuilt.load_state_dict(trained.state_dict())
+    rebuilt.eval(), trained.eval()
+    frames = [torch.rand(4, 3, 84, 84) for _ in range(4)]
+    zeros, starts = torch.zeros(4, 1), torch.zeros(4, 1, dtype=torch.bool)
+    logits = rebuilt(frames, zeros, zeros, starts)[0]
+    assert logits.dtype == torch.float32 and torch.isfinite(logits).all()
+    assert torch.equal(logits, trained(frames, zeros, zeros, starts)[0])

@@ -170,7 +170,7 @@ class PAACNetwork(nn.Module):
             )
         self.trunk.to(memory_format=torch.channels_last)  # ~3x faster convolutions on CPU
         self.core_type = core
-        with torch.no_grad():
+        with torch.no_grad(), autocast(precision):  # the trunk's own dtype (bfloat16 frames)
             probe = [torch.zeros(2, in_channels // frames, 84, 84)] * frames
             _, channels, h, w = self._maps(probe).shape
         self.channels, self.locations = channels, h * w

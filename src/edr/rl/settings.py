@@ -72,7 +72,7 @@ class NetworkSettings:
     core: Core = "none"  # none (feed-forward PAAC), ftlstm (the paper's), lstm, lenet_ftlstm
     init: Init = "fan_in"  # fan_in (PAAC's TensorFlow code) or orthogonal (OpenAI's A2C)
     input_norm: InputNorm = "batchnorm"  # batchnorm (batch statistics), raw or centred frames
-    precision: PrecisionChoice = "float32"  # float32, bfloat16 (autocast) or auto (timed)
+    precision: PrecisionChoice = "auto"  # float32, bfloat16 (autocast) or auto (timed)
 
 
 @dataclass(frozen=True)
