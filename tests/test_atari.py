@@ -221,13 +221,21 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert sum(p.numel() for p in network.parameters()) > 0
     assert metrics["eval/network_mode"] == "eval" and metrics["eval/policy"] == "sample"
 
+    # a finished run is scored from its network.pt, its checkpoint and own evaluation untouched
+    own = (tmp_path / "eval_scores.json").read_text()
+    assert evaluate_checkpoint(tmp_path, plays=1)["train/env_steps"] == 2000
+    assert (tmp_path / "eval_scores.json").read_text() == own
+    assert (tmp_path / "network_eval.json").is_file()
     # a finished run kept as Table 1 keeps it (run.json and network.pt) is scored again
     kept = tmp_path.with_name(f"{tmp_path.name}_kept")
     kept.mkdir()
     for name in ("run.json", "network.pt"):
         (kept / name).write_bytes((tmp_path / name).read_bytes())
-    rescored = evaluate_checkpoint(kept, plays=2)
+    rescored = evaluate_checkpoint(kept, plays=2, random_play=True)
     assert rescored["train/env_steps"] == 2000 and rescored["eval/plays"] == 2
+    assert rescored["random/plays"] == 2 and rescored["random/steps_mean"] >= 1
+    for side in ("eval", "random"):  # a game's clipped return counts its points' signs
+        assert abs(rescored[f"{side}/clipped_mean"]) <= rescored[f"{side}/steps_mean"]
     saved = json.loads((kept / "network_eval.json").read_text())
     assert len(saved.pop("scores")) == 2 and saved == rescored
     assert sorted(p.name for p in kept.iterdir()) == ["network.pt", "network_eval.json", "run.json"]

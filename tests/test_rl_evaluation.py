@@ -57,8 +57,8 @@ def test_the_evaluation_plays_in_eval_mode_and_leaves_the_network_as_it_was() ->
     seen_modes: list[bool] = []
     network.register_forward_pre_hook(lambda module, args: seen_modes.append(module.training))
     before = {k: v.clone() for k, v in network.state_dict().items()}
-    scores = _evaluate(network, CATCH, 4, "serial", 0, EvalSettings(plays=2, max_steps=20))
-    assert len(scores) == 2 and seen_modes and not any(seen_modes)
+    games = _evaluate(network, CATCH, 4, "serial", 0, EvalSettings(plays=2, max_steps=20))
+    assert len(games.scores) == 2 and seen_modes and not any(seen_modes)
     assert network.training  # back in training mode for whatever comes next
     for key, value in network.state_dict().items():
         torch.testing.assert_close(value, before[key], rtol=0, atol=0, msg=key)

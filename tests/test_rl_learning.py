@@ -81,11 +81,15 @@ def test_play_scores_one_whole_game_per_env_at_once() -> None:
     torch.manual_seed(0)
     actor, ended = Actor(env, PAACNetwork(5, 3, "lstm")), []
     # a drop falls for 4 steps and scores +1 or -1; a game is 4 drops (16 steps)
-    assert all(score in (-1.0, 1.0) for score in actor.play(4, on_end=ended.append))
+    first = actor.play(4, on_end=ended.append)
+    assert all(score in (-1.0, 1.0) for score in first.scores) and first.steps == [4, 4, 4]
     assert ended == []  # no game ended in 4 steps: each counts the one drop it scored
-    scores = actor.play(100, on_end=ended.append)
-    assert len(scores) == 3 and all(score in (-4.0, -2.0, 0.0, 2.0, 4.0) for score in scores)
+    games = actor.play(100, on_end=ended.append)
+    assert len(games.scores) == 3
+    assert all(score in (-4.0, -2.0, 0.0, 2.0, 4.0) for score in games.scores)
     assert sum(ended) == 3  # every game ended once; what the envs play after is not counted
+    assert games.steps == [16, 16, 16]  # what the envs play after is not counted either
+    assert games.clipped == games.scores  # catching rewards are already -1 / +1
     env.close()
 
 

@@ -1,5 +1,5 @@
-"""edr-eval: score an Atari run's latest checkpoint, for a run stopped before its end (or
-scored again with more games), or a finished run's ``network.pt`` (Table 1's kept networks).
+"""edr-eval: score an Atari run's network again: a finished run's ``network.pt`` (Table 1's kept
+networks), or the latest checkpoint of a run stopped before its end.
 ``python -m edr.evaluate`` is the same command."""
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from edr.tasks.rebuild import UntrustedRecord
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="edr-eval",
-        description="Score an Atari run's network again, in eval mode: its latest checkpoint "
-        "(writes eval_scores.json, history.json, the training curve and checkpoint_eval.json "
-        "beside its run.json) or, in a folder without one, its network.pt (writes "
-        "network_eval.json only). Plays task.evaluation.plays games, or --plays.",
+        description="Score an Atari run's network again, in eval mode: a finished run's "
+        "network.pt (writes network_eval.json only: the run's own evaluation stays) or a stopped "
+        "run's latest checkpoint (writes eval_scores.json, history.json, the training curve and "
+        "checkpoint_eval.json beside its run.json). Plays task.evaluation.plays games, or --plays.",
         epilog="example: edr-eval results/runs/atari/<run> --plays 30",
     )
     parser.add_argument(
@@ -30,6 +30,12 @@ def _parser() -> argparse.ArgumentParser:
         "--trust-env-module",
         action="store_true",
         help="import the module the record names (task.env.env_module): it runs its code",
+    )
+    parser.add_argument(
+        "--random-play",
+        action="store_true",
+        help="also play random actions on the same games (random/ metrics: score, game length, "
+        "clipped return), the yardstick for a game the network plays worse than chance",
     )
     return parser
 
@@ -42,7 +48,9 @@ def main(argv: list[str] | None = None) -> None:
     from edr.tasks.atari import evaluate_checkpoint  # torch, torchrl and the envs load here
 
     try:
-        metrics = evaluate_checkpoint(args.run_dir, args.plays, args.trust_env_module)
+        metrics = evaluate_checkpoint(
+            args.run_dir, args.plays, args.trust_env_module, args.random_play
+        )
     except (UntrustedRecord, UnreadableRecord, UnreadableCheckpoint, FileNotFoundError) as error:
         parser.exit(2, f"{parser.prog}: {error}\n")
     print(json.dumps(metrics, indent=1))

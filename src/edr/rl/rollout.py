@@ -47,6 +47,15 @@ class Rollout:
         return self.actions.numel()
 
 
+@dataclass
+class Games:
+    """One whole game per env, played at once (:meth:`Actor.play`), in the envs' order."""
+
+    scores: list[float]  # raw scores
+    steps: list[int]  # agent steps each game lasted (``max_steps`` for one still on)
+    clipped: list[float]  # rewards clipped to their sign, summed: training's (undiscounted) return
+
+
 class Actor:
     """Plays ``network``'s policy (sampled) in ``env``, a batched env with ``InitTracker``.
 
@@ -143,21 +152,26 @@ class Actor:
     @torch.no_grad()
     def play(
         self, max_steps: int, greedy: bool = False, on_end: Callable[[int], object] | None = None
-    ) -> list[float]:
-        """One whole game on every env at once, from a reset; their raw scores. The actions are
-        sampled from the policy, as in training, or its most probable ones (``greedy``). A game
-        still on after ``max_steps`` agent steps counts what it scored so far; an env whose game
-        ended plays on (the batch steps together) and its later rewards are not counted.
-        ``on_end(k)`` hears of the k games that ended at each step (a progress bar's update).
-        The network plays as it is: its caller puts it in eval mode."""
+    ) -> Games:
+        """One whole game on every env at once, from a reset: their raw scores, lengths and
+        clipped returns. The actions are sampled from the policy, as in training, or its most
+        probable ones (``greedy``). A game still on after ``max_steps`` agent steps counts what
+        it scored so far; an env whose game ended plays on (the batch steps together) and its
+        later rewards are not counted. ``on_end(k)`` hears of the k games that ended at each
+        step (a progress bar's update). The network plays as it is: its caller puts it in eval
+        mode."""
         self._td = None
         td = self._state()
         n = td.batch_size.numel()
-        scores, playing = torch.zeros(n), torch.ones(n, dtype=torch.bool)
+        scores, clipped, steps = torch.zeros(n), torch.zeros(n), torch.zeros(n, dtype=torch.long)
+        playing = torch.ones(n, dtype=torch.bool)
         for _ in range(max_steps):
             self._act(td, greedy)
             out, td = self.env.step_and_maybe_reset(td)
-            scores += out["next", "reward"].reshape(n) * playing
+            reward = out["next", "reward"].reshape(n)
+            scores += reward * playing
+            clipped += reward.sign() * playing
+            steps += playing
             ended = playing & out["next", "done"].reshape(n)
             playing &= ~ended
             if on_end is not None and ended.any():
@@ -165,7 +179,7 @@ class Actor:
             if not playing.any():
                 break
         self._td = None
-        return scores.tolist()
+        return Games(scores.tolist(), steps.tolist(), clipped.tolist())
 
 
 class UniformPolicy(nn.Module):

@@ -37,7 +37,7 @@ from edr.representations import EDR
 from edr.rl.envs import Backend, make_atari_env, rom_fingerprint
 from edr.rl.learner import Diverged, Learner
 from edr.rl.phases import PhaseClock
-from edr.rl.rollout import Actor, Rollout, UniformPolicy, observations_held
+from edr.rl.rollout import Actor, Games, Rollout, UniformPolicy, observations_held
 from edr.rl.settings import (
     EnvSettings,
     EvalSettings,
@@ -178,14 +178,17 @@ def _evaluation(
 ) -> tuple[list[float], dict[str, Any]]:  # fmt: skip
     """The evaluation games' raw scores (none unless ``played``) and the record's ``eval/``
     part; games cut short by ``max_steps`` get random play's mean on the same games beside."""
-    scores = _evaluate(net, env_kwargs, frame_stack, backend, seed, evaluation) if played else []
-    random_scores = (
+    games = _evaluate(net, env_kwargs, frame_stack, backend, seed, evaluation) if played else None
+    random_games = (
         _evaluate(UniformPolicy(net.policy.out_features), env_kwargs, frame_stack, backend, seed,
                   evaluation)
-        if evaluation.capped and scores else None
+        if evaluation.capped and games else None
     )  # fmt: skip
-    return scores, {**_score_metrics(scores), **_random_metrics(random_scores, evaluation),
-                    **_evaluation_mode(evaluation)}  # fmt: skip
+    metrics = {**_score_metrics(games), **_evaluation_mode(evaluation)}
+    if random_games is not None:
+        metrics |= {"eval/random_mean": float(np.mean(random_games.scores)),
+                    "eval/max_steps": evaluation.max_steps}  # fmt: skip
+    return games.scores if games else [], metrics
 
 
 def _evaluation_mode(evaluation: EvalSettings) -> dict[str, str]:
@@ -338,13 +341,6 @@ def _train(
     return {}
 
 
-def _random_metrics(scores: list[float] | None, evaluation: EvalSettings) -> dict[str, float]:
-    """Random play's mean under the evaluation's cap, when the run measured it."""
-    if scores is None:
-        return {}
-    return {"eval/random_mean": float(np.mean(scores)), "eval/max_steps": evaluation.max_steps}
-
-
 def _diverged(env_steps: int, update: int, reason: str) -> dict[str, Any]:
     """The record's note of a divergence: where (env steps, update) and why."""
     return {"train/diverged_step": env_steps, "train/diverged_update": update,
@@ -451,8 +447,8 @@ def _network(
 def _evaluate(
     network: PAACNetwork | UniformPolicy, env_kwargs: dict[str, Any], frame_stack: int, backend: Backend,
     seed: int, settings: EvalSettings,
-) -> list[float]:  # fmt: skip
-    """Raw scores of ``settings.plays`` whole games (no life loss, no clipping), played at once
+) -> Games:  # fmt: skip
+    """``settings.plays`` whole games (raw scores: no life loss, no clipping), played at once
     on as many envs: EnvPool's when training used it, else serial (the network steps them as
     one batch). The network plays in eval mode: batch-normed frames by the running statistics
     training left, not by the statistics of the games played together, which it leaves as they
@@ -478,14 +474,20 @@ def _write_results(out_dir: Path, history: list[dict], scores: list[float], titl
     save_score_curve(history, out_dir / "training_curve.png", title=title)
 
 
-def _score_metrics(scores: list[float]) -> dict[str, float | int]:
-    """Min, max and mean of the games' scores (NaN when no game was played: a divergence)."""
-    nan = float("nan")
+def _score_metrics(games: Games | None, prefix: str = "eval/") -> dict[str, float | int]:
+    """Min, max and mean of the games' scores (NaN when no game was played: a divergence), and
+    their mean length (agent steps) and clipped return (what training maximises)."""
+    if games is None:
+        nan = float("nan")
+        return {f"{prefix}plays": 0, f"{prefix}min": nan, f"{prefix}max": nan,
+                f"{prefix}mean": nan}  # fmt: skip
     return {
-        "eval/plays": len(scores),
-        "eval/min": float(np.min(scores)) if scores else nan,
-        "eval/max": float(np.max(scores)) if scores else nan,
-        "eval/mean": float(np.mean(scores)) if scores else nan,
+        f"{prefix}plays": len(games.scores),
+        f"{prefix}min": float(np.min(games.scores)),
+        f"{prefix}max": float(np.max(games.scores)),
+        f"{prefix}mean": float(np.mean(games.scores)),
+        f"{prefix}steps_mean": float(np.mean(games.steps)),
+        f"{prefix}clipped_mean": float(np.mean(games.clipped)),
     }
 
 
@@ -498,17 +500,20 @@ def load_network(run_dir: str | Path) -> PAACNetwork:
 
 
 def evaluate_checkpoint(
-    run_dir: str | Path, plays: int | None = None, trust_env_module: bool = False
-) -> dict[str, Any]:
-    """Score an Atari run's network again: its latest checkpoint (a run stopped before its end),
-    else the trained ``network.pt`` (a finished run, such as those kept behind Table 1).
+    run_dir: str | Path, plays: int | None = None, trust_env_module: bool = False,
+    random_play: bool = False,
+) -> dict[str, Any]:  # fmt: skip
+    """Score an Atari run's network again: a finished run's trained ``network.pt`` (such as those
+    kept behind Table 1), else its latest checkpoint (a run stopped before its end).
 
     Rebuilds the envs and network from the run's record (``run.json``), plays ``plays`` games
     (the run's ``evaluation.plays`` by default) as the run's evaluation does, the network in
     eval mode. From a checkpoint it writes ``eval_scores.json``, ``history.json``, the training
     curve and ``checkpoint_eval.json`` (these metrics, with the env steps the checkpoint had
     trained) beside the record; from ``network.pt`` only ``network_eval.json`` (the metrics and
-    every game's score), so the run's own evaluation stays as it was. Returns the metrics. The
+    every game's score), so the run's own evaluation stays as it was. With ``random_play``,
+    random play's games on the same envs and seeds beside (``random/`` metrics). The metrics
+    hold each side's mean game length (agent steps) and clipped return. Returns them. The
     record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and a module it names
     (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is imported only
     with ``trust_env_module``.
@@ -520,7 +525,9 @@ def evaluate_checkpoint(
             f"{run_dir / 'run.json'} is a {record['task']} run: edr-eval scores Atari runs (a "
             "recognition run's test accuracy is in its run.json, its model in model.pt)"
         )
-    source = next((run_dir / n for n in (CHECKPOINT, NETWORK) if (run_dir / n).is_file()), None)
+    # a finished run's own evaluation stays as it was, though it keeps its checkpoint (to train on)
+    order = (NETWORK, CHECKPOINT) if record.get("status") == "finished" else (CHECKPOINT, NETWORK)
+    source = next((run_dir / n for n in order if (run_dir / n).is_file()), None)
     if source is None:
         raise FileNotFoundError(
             f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
@@ -552,17 +559,18 @@ def evaluate_checkpoint(
         state.get("precision") if source.name == CHECKPOINT else state["arguments"].get("precision")
     ) or "float32"  # runs from before the precision setting trained in float32
     env_kwargs = _frames_for(network, env_kwargs)
-    scores = _evaluate(
-        network, env_kwargs, env.frame_stack, env.resolved_backend(), record["seed"], evaluation
-    )
-    title = f"{env.name}, inputs={env.inputs}"
+    play = functools.partial(_evaluate, env_kwargs=env_kwargs, frame_stack=env.frame_stack,
+                             backend=env.resolved_backend(), seed=record["seed"],
+                             settings=evaluation)  # fmt: skip
+    games = play(network)
+    metrics = {**_score_metrics(games), **_evaluation_mode(evaluation)}
+    if random_play:
+        metrics |= _score_metrics(play(UniformPolicy(network.policy.out_features)), "random/")
     if source.name == NETWORK:
-        metrics = {"train/env_steps": record.get("metrics", {}).get("train/env_steps"),
-                   **_score_metrics(scores), **_evaluation_mode(evaluation)}  # fmt: skip
-        write_json_atomic(run_dir / "network_eval.json", {**metrics, "scores": scores})
+        metrics = {"train/env_steps": record.get("metrics", {}).get("train/env_steps"), **metrics}
+        write_json_atomic(run_dir / "network_eval.json", {**metrics, "scores": games.scores})
         return metrics
-    _write_results(run_dir, state["history"], scores, title)
-    metrics = {"train/env_steps": state["env_steps"], **_score_metrics(scores),
-               **_evaluation_mode(evaluation)}  # fmt: skip
+    _write_results(run_dir, state["history"], games.scores, f"{env.name}, inputs={env.inputs}")
+    metrics = {"train/env_steps": state["env_steps"], **metrics}
     write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
     return metrics
