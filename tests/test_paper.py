@@ -397,6 +397,11 @@ def test_the_sentence_on_figure_5bs_ratio_follows_the_runs_spread() -> None:
     assert ": undecided at this spread" in ratio_verdict([1000.0, 1200.0], [1500.0, 2400.0], 1.8, 1)
     assert "fewer than 2 runs" in ratio_verdict([1000.0], [2400.0, 2500.0], 1.8, 1)
     assert "at or below 0" in ratio_verdict([0.0, 10.0], [2400.0, 2500.0], 1.8, 1)
+    # below random play, a verdict is no evidence on the claim, and says so
+    below = ratio_verdict([1000.0, 1200.0], [1100.0, 1700.0], 1.8, 1, random_play=2090.9)
+    assert ": contradicted" in below and "above random play (2,091 a game)" in below
+    assert "no evidence" in below
+    assert "random play" not in ratio_verdict([1000.0, 1200.0], [1100.0, 2400.0], 1.8, 1, 2090.9)
 
 
 def test_a_caption_names_the_revisions_with_uncommitted_changes() -> None:

@@ -109,8 +109,10 @@ def steps_to_targets_block(done: pd.DataFrame, published: dict[str, Any]) -> str
                                       paper.get("pong_env_steps_to_18") or {})  # fmt: skip
                 lines += ["", f"At {budget} env steps: {said}"]
             if game in EQUAL_STEPS_GAMES:
+                random_play = lookup(published, "atari_reference_scores", game, "random")
                 lines += ["", equal_steps_block(game, budget, by_input,
-                                                paper.get("centipede_reward_ratio"))]  # fmt: skip
+                                                paper.get("centipede_reward_ratio"),
+                                                random_play)]  # fmt: skip
         blocks.append("\n".join(lines))
     if not blocks:
         return ""
@@ -161,10 +163,12 @@ def equal_steps_block(
     budget: str,
     histories: dict[str, list[list[dict[str, Any]]]],
     paper_ratio: float | None,
+    random_play: float | None = None,
 ) -> str:
     """Markdown: ``game``'s training score of each input at equal env steps (every million up to
     the most that every run reached: mean ± std over runs, and FDR+EDR's over FDR's by the
-    means), then the sentence on Figure 5b's "1.8x higher reward" at the last of them."""
+    means), then the sentence on Figure 5b's "1.8x higher reward" at the last of them (with
+    ``random_play``, the game's random-play score, where no run beats it)."""
     histories = {i: histories[i] for i in ("fdr", "fdr_edr")}  # (runs of each input)
     reached = min(h[-1]["env_steps"] if h else 0 for hs in histories.values() for h in hs)
     points = [*range(M, reached, M), reached] if reached else []
@@ -183,7 +187,8 @@ def equal_steps_block(
         ratio = f"{np.mean(b) / np.mean(a):.2f}x" if a and b and np.mean(a) > 0 else "—"
         lines.append(f"| {at / M:.2f}M | {_spread(a)} | {_spread(b)} | {ratio} |")
     last = {i: scores[-1] if scores else [] for i, scores in at_points.items()}
-    said = ratio_verdict(last["fdr"], last["fdr_edr"], paper_ratio, points[-1] if points else 0)
+    said = ratio_verdict(last["fdr"], last["fdr_edr"], paper_ratio, points[-1] if points else 0,
+                         random_play)  # fmt: skip
     return "\n".join([*lines, "", said])
 
 
@@ -195,12 +200,15 @@ def _spread(scores: list[float]) -> str:
 
 
 def ratio_verdict(
-    fdr: list[float], fdr_edr: list[float], paper_ratio: float | None, env_steps: int
-) -> str:
+    fdr: list[float], fdr_edr: list[float], paper_ratio: float | None, env_steps: int,
+    random_play: float | None = None,
+) -> str:  # fmt: skip
     """One sentence on Figure 5b's "FDR+EDR reaches 1.8x higher reward than FDR" (``paper_ratio``)
     from each run's training score at the same ``env_steps``: supported when every FDR+EDR run
     scored at least that many times every FDR run, contradicted when none did (the highest
-    FDR+EDR score below that many times the lowest FDR one), undecided otherwise."""
+    FDR+EDR score below that many times the lowest FDR one), undecided otherwise. Where no run
+    of either input scores above ``random_play``, a second sentence says the reading is of two
+    policies that have not learned the game, not of what EDR adds to one that has."""
     target = paper_ratio or 1.8
     claim = f'Figure 5b\'s "{target:g}x higher reward" (Centipede, FDR+EDR over FDR)'
     where = f"at {env_steps / M:.2f}M env steps (the most every run reached)"
@@ -215,9 +223,16 @@ def ratio_verdict(
         verdict = "contradicted"
     else:
         verdict = "undecided at this spread (the runs' ratios span it)"
-    return (
+    said = (
         f"{claim}: {verdict} {where}: FDR+EDR's training score {min(fdr_edr):,.0f} - "
         f"{max(fdr_edr):,.0f} ({len(fdr_edr)} runs), FDR's {min(fdr):,.0f} - {max(fdr):,.0f} "
         f"({len(fdr)} runs): {np.mean(fdr_edr) / np.mean(fdr):.2f}x by the means, "
         f"{low:.2f} - {high:.2f}x run against run."
     )
+    if random_play is not None and max(fdr + fdr_edr) < random_play:
+        said += (
+            f" No run of either input scores above random play ({random_play:,.0f} a game) "
+            "there: this compares two policies that have not learned the game under these "
+            "settings, not what EDR adds to one that has; it is no evidence on the claim."
+        )
+    return said
