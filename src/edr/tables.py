@@ -144,7 +144,7 @@ def render_runs(
     figures = {
         "figure5_atari_curves": (
             "Figure 5: Atari training curves, FDR vs FDR+EDR",
-            fig5_atari_curves(runs),
+            fig5_atari_curves(runs, published),
         ),
         "figure6_ucf101_per_class": (
             "Figure 6: UCF-101 per-class accuracy",

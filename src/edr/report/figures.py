@@ -140,9 +140,10 @@ def _curve_panels(
     return fig
 
 
-def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
-    """Per game: the training score (top) and the fraction of the first convolution's units
-    that are dead (bottom), mean and min-max band over seeds, per input."""
+def fig5_atari_curves(runs: pd.DataFrame, published: dict[str, Any]) -> tuple[pd.DataFrame, Draw]:
+    """Per game: the training score (top, beside the game's random play) and the fraction of
+    the fully connected layer's units that are dead (bottom; the convolutions' stay at 0 in
+    every committed run), mean and min-max band over seeds, per input."""
     done = atari_runs(runs)  # labelled by input, and by budget where there are several
 
     def draw() -> plt.Figure | None:
@@ -157,14 +158,17 @@ def fig5_atari_curves(runs: pd.DataFrame) -> tuple[pd.DataFrame, Draw]:
             drawn.append(_draw_curves(
                 axes[0, k], runs_of_game, ["label"], "env_steps", "train/score", styles
             ))  # fmt: skip
-            _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/trunk.1", styles)
+            _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/embed.2", styles)
+            random_play = lookup(published, "atari_reference_scores", game, "random")
+            if random_play is not None:
+                axes[0, k].axhline(random_play, color="0.4", ls=":", lw=1, label="random play")
             axes[0, k].set(title=game, xlabel="env steps", ylabel="mean score, last 20 episodes")
-            axes[1, k].set(xlabel="env steps", ylabel="conv1 units dead (fraction)",
+            axes[1, k].set(xlabel="env steps", ylabel="FC units dead (fraction)",
                            ylim=(-0.02, 1.02))  # fmt: skip
         if not any(drawn):
             plt.close(fig)
             return None
-        fig.suptitle("Figure 5: training score and dead conv1 units, FDR vs FDR+EDR", fontsize=10)
+        fig.suptitle("Figure 5: training score and dead FC units, FDR vs FDR+EDR", fontsize=10)
         _legend_outside(fig, list(axes.flat))
         return fig
 
