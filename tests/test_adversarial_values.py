@@ -18,6 +18,7 @@ from edr.checks.config import ConfigError
 from edr.data.datasets import kth, ucf101
 from edr.data.synthetic import write_synthetic_kth
 from edr.data.video import read_video, write_video
+from edr.evaluate import main as evaluate_main
 from edr.representations import EDR
 from edr.representations.base import FULL_SCALE
 from edr.run import run
@@ -445,7 +446,7 @@ def test_dvs_fine_tuning_on_infinite_events_is_recorded_as_diverged(
 
 
 @pytest.mark.slow
-def test_an_atari_lr_of_1e30_is_recorded_as_diverged(compose_config, tmp_path) -> None:
+def test_an_atari_lr_of_1e30_is_recorded_as_diverged(compose_config, tmp_path, capsys) -> None:
     metrics = run(compose_config(
         "task=atari", "debug=tiny", "representation.color=gray", "task.optim.lr=1e30",
         f"out_dir={tmp_path}",
@@ -453,3 +454,11 @@ def test_an_atari_lr_of_1e30_is_recorded_as_diverged(compose_config, tmp_path) -
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["status"] == "finished" and metrics["train/diverged_step"] > 0
     assert metrics["eval/plays"] == 0 and np.isnan(metrics["eval/mean"])
+    # edr-eval on it: one line naming the run (its networks' outputs are not numbers), and the
+    # folder as it was
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    with pytest.raises(SystemExit) as stopped:
+        evaluate_main([str(tmp_path), "--plays", "1"])
+    assert stopped.value.code == 1
+    assert "NaN or inf" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == files

@@ -239,6 +239,15 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     saved = json.loads((kept / "network_eval.json").read_text())
     assert len(saved.pop("scores")) == 2 and saved == rescored
     assert sorted(p.name for p in kept.iterdir()) == ["network.pt", "network_eval.json", "run.json"]
+    # kept with its checkpoint alone: scored from it, nothing of the run's own evaluation written
+    alone = tmp_path.with_name(f"{tmp_path.name}_checkpoint")
+    alone.mkdir()
+    for name in ("run.json", "checkpoint.pt"):
+        (alone / name).write_bytes((tmp_path / name).read_bytes())
+    assert evaluate_checkpoint(alone, plays=1)["train/env_steps"] == 2000
+    assert sorted(p.name for p in alone.iterdir()) == [
+        "checkpoint.pt", "checkpoint_eval.json", "run.json"
+    ]  # fmt: skip
 
     # a finished run trains on from its last checkpoint to a raised budget, and not to a lower one
     extended = run(compose_config(*overrides, f"out_dir={tmp_path}", "task.env_steps=2400"))

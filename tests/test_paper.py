@@ -399,8 +399,11 @@ def test_the_sentence_on_figure_5bs_ratio_follows_the_runs_spread() -> None:
     assert "at or below 0" in ratio_verdict([0.0, 10.0], [2400.0, 2500.0], 1.8, 1)
     # below random play, a verdict is no evidence on the claim, and says so
     below = ratio_verdict([1000.0, 1200.0], [1100.0, 1700.0], 1.8, 1, random_play=2090.9)
-    assert ": contradicted" in below and "above random play (2,091 a game)" in below
-    assert "no evidence" in below
+    assert ": no evidence either way at 0.00M env steps" in below
+    assert (
+        "above random play (2,091 a game)" in below
+        and "by the numbers alone, contradicted" in below
+    )
     assert "random play" not in ratio_verdict([1000.0, 1200.0], [1100.0, 2400.0], 1.8, 1, 2090.9)
 
 
@@ -422,3 +425,32 @@ def test_a_caption_names_the_revisions_with_uncommitted_changes() -> None:
     bench = {"machine": {"cpu": "c", "cpu_count": 2}, "border": 8, "measured_at": "now",
              "git": "abc+dirty", "epe": {}}  # fmt: skip
     assert "Uncommitted code: git abc+dirty: changes" in flow_accuracy_table(bench)
+
+
+def test_the_iqm_compares_each_budget_over_the_games_both_its_inputs_ran() -> None:
+    import pandas as pd
+
+    from edr.report.atari import iqm_table, normalised_scores
+
+    rows = [
+        {"label": f"{i} at {b}", "budget": b, "game": g, "seed": s, "metrics.eval/mean": score}
+        for b, games in (("3M", ("Pong",)), ("5M", ("Pong", "Centipede")))
+        for i in ("FDR", "FDR+EDR")
+        for g in games
+        for s, score in enumerate((10.0, 12.0, 15.0) if g == "Pong" else (900.0, 1500.0, 2500.0))
+    ]
+    reference = {"atari_reference_scores": {"Pong": {"random": -20.7, "human": 14.6},
+                                            "Centipede": {"random": 2090.9, "human": 12017.0}}}  # fmt: skip
+    scores = normalised_scores(pd.DataFrame(rows), reference)
+    # a budget's Centipede runs count there, though the other budget has none
+    assert {name: s.shape for name, s in scores.items()} == {
+        "FDR at 3M": (3, 1), "FDR+EDR at 3M": (3, 1), "FDR at 5M": (3, 2), "FDR+EDR at 5M": (3, 2)
+    }  # fmt: skip
+    assert scores["FDR at 5M"][0, 0] == pytest.approx((900.0 - 2090.9) / (12017.0 - 2090.9))
+    import numpy as np
+
+    np.random.seed(7)
+    table = iqm_table(scores, reps=200)
+    assert np.random.randint(1 << 30) == np.random.RandomState(7).randint(1 << 30)  # restored
+    assert table == iqm_table(scores, reps=200)  # the same records, the same intervals
+    assert "| FDR at 5M | 2 | 3 |" in table and "| FDR at 3M | 1 | 3 |" in table

@@ -17,9 +17,10 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="edr-eval",
         description="Score an Atari run's network again, in eval mode: a finished run's "
-        "network.pt (writes network_eval.json only: the run's own evaluation stays) or a stopped "
-        "run's latest checkpoint (writes eval_scores.json, history.json, the training curve and "
-        "checkpoint_eval.json beside its run.json). Plays task.evaluation.plays games, or --plays.",
+        "network.pt (writes network_eval.json only: the run's own evaluation stays) or the latest "
+        "checkpoint of a stopped or diverged run (writes checkpoint_eval.json; for a stopped run "
+        "also eval_scores.json, history.json and the training curve, beside its run.json). Plays "
+        "task.evaluation.plays games, or --plays.",
         epilog="example: edr-eval results/runs/atari/<run> --plays 30",
     )
     parser.add_argument(
@@ -53,6 +54,8 @@ def main(argv: list[str] | None = None) -> None:
         )
     except (UntrustedRecord, UnreadableRecord, UnreadableCheckpoint, FileNotFoundError) as error:
         parser.exit(2, f"{parser.prog}: {error}\n")
+    except FloatingPointError as error:  # a network whose weights are no longer numbers
+        parser.exit(1, f"{parser.prog}: {args.run_dir}: {error}\n")
     print(json.dumps(metrics, indent=1))
 
 

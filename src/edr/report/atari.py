@@ -4,6 +4,8 @@ with stratified-bootstrap 95 % intervals (rliable)."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -157,6 +159,18 @@ def normalised_scores(done: pd.DataFrame, published: dict[str, Any]) -> dict[str
     return out
 
 
+@contextlib.contextmanager
+def seeded_bootstrap(seed: int = 0) -> Iterator[None]:
+    """rliable's bootstraps draw from NumPy's global generator: seeded within, so that the same
+    records render the same intervals, and restored after, so nothing else sees the seed."""
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
 def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
     """Markdown: interquartile mean per input with its 95 % stratified-bootstrap interval."""
     from rliable import library as rly
@@ -164,10 +178,10 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
 
     if not scores:
         return ""
-    points, intervals = rly.get_interval_estimates(
-        scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps,
-        random_state=np.random.RandomState(0),  # the same records render the same interval
-    )  # fmt: skip
+    with seeded_bootstrap():
+        points, intervals = rly.get_interval_estimates(
+            scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps
+        )
     lines = [
         "Beyond the paper: interquartile mean of human-normalised average scores over the games "
         "every input of a budget ran (Games), 95 % stratified-bootstrap interval (rliable, "

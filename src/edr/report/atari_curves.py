@@ -206,9 +206,9 @@ def ratio_verdict(
     """One sentence on Figure 5b's "FDR+EDR reaches 1.8x higher reward than FDR" (``paper_ratio``)
     from each run's training score at the same ``env_steps``: supported when every FDR+EDR run
     scored at least that many times every FDR run, contradicted when none did (the highest
-    FDR+EDR score below that many times the lowest FDR one), undecided otherwise. Where no run
-    of either input scores above ``random_play``, a second sentence says the reading is of two
-    policies that have not learned the game, not of what EDR adds to one that has."""
+    FDR+EDR score below that many times the lowest FDR one), undecided otherwise; no evidence
+    either way where no run of either input scores above ``random_play`` (two policies that play
+    the game worse than chance), the reading by the numbers alone said beside."""
     target = paper_ratio or 1.8
     claim = f'Figure 5b\'s "{target:g}x higher reward" (Centipede, FDR+EDR over FDR)'
     where = f"at {env_steps / M:.2f}M env steps (the most every run reached)"
@@ -223,16 +223,18 @@ def ratio_verdict(
         verdict = "contradicted"
     else:
         verdict = "undecided at this spread (the runs' ratios span it)"
-    said = (
-        f"{claim}: {verdict} {where}: FDR+EDR's training score {min(fdr_edr):,.0f} - "
+    if random_play is not None and max(fdr + fdr_edr) < random_play:
+        verdict = (
+            f"no evidence either way {where}: no run of either input scores above random play "
+            f"({random_play:,.0f} a game) there, so this compares two policies that play the "
+            f"game worse than chance, not what EDR adds to one that plays it; by the numbers "
+            f"alone, {verdict}"
+        )
+    else:
+        verdict = f"{verdict} {where}"
+    return (
+        f"{claim}: {verdict}: FDR+EDR's training score {min(fdr_edr):,.0f} - "
         f"{max(fdr_edr):,.0f} ({len(fdr_edr)} runs), FDR's {min(fdr):,.0f} - {max(fdr):,.0f} "
         f"({len(fdr)} runs): {np.mean(fdr_edr) / np.mean(fdr):.2f}x by the means, "
         f"{low:.2f} - {high:.2f}x run against run."
     )
-    if random_play is not None and max(fdr + fdr_edr) < random_play:
-        said += (
-            f" No run of either input scores above random play ({random_play:,.0f} a game) "
-            "there: this compares two policies that have not learned the game under these "
-            "settings, not what EDR adds to one that has; it is no evidence on the claim."
-        )
-    return said

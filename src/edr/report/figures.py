@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from edr.report.atari import atari_runs, normalised_scores
+from edr.report.atari import atari_runs, normalised_scores, seeded_bootstrap
 from edr.report.published import cite, lookup
 from edr.report.recognition import labelled, learnable_runs, without_ablations
 from edr.report.render import paper_heading, provenance
@@ -142,8 +142,9 @@ def _curve_panels(
 
 def fig5_atari_curves(runs: pd.DataFrame, published: dict[str, Any]) -> tuple[pd.DataFrame, Draw]:
     """Per game: the training score (top, beside the game's random play) and the fraction of
-    the fully connected layer's units that are dead (bottom; the convolutions' stay at 0 in
-    every committed run), mean and min-max band over seeds, per input."""
+    the fully connected layer's units that are dead (bottom, ``dead/embed.2``: core none or
+    lstm, Table 1's; the convolutions' stay at 0 in every committed run), mean and min-max band
+    over seeds, per input."""
     done = atari_runs(runs)  # labelled by input, and by budget where there are several
 
     def draw() -> plt.Figure | None:
@@ -158,7 +159,10 @@ def fig5_atari_curves(runs: pd.DataFrame, published: dict[str, Any]) -> tuple[pd
             drawn.append(_draw_curves(
                 axes[0, k], runs_of_game, ["label"], "env_steps", "train/score", styles
             ))  # fmt: skip
-            _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/embed.2", styles)
+            fc = _draw_curves(axes[1, k], runs_of_game, ["label"], "env_steps", "dead/embed.2",
+                              styles)  # fmt: skip
+            if not fc:  # a core without the FC layer (ftlstm), or another's name for it
+                axes[1, k].set_title("no dead/embed.2 in these runs' histories", fontsize=8)
             random_play = lookup(published, "atari_reference_scores", game, "random")
             if random_play is not None:
                 axes[0, k].axhline(random_play, color="0.4", ls=":", lw=1, label="random play")
@@ -335,7 +339,8 @@ def _profile(done: pd.DataFrame, published: dict[str, Any]) -> plt.Figure | None
     if not scores:
         return None
     taus = np.linspace(-0.5, 1.5, 41)
-    profiles, intervals = rly.create_performance_profile(scores, taus, reps=500)
+    with seeded_bootstrap():
+        profiles, intervals = rly.create_performance_profile(scores, taus, reps=500)
     fig, ax = plt.subplots(figsize=(5, 3.5))
     plot_utils.plot_performance_profiles(
         profiles,

@@ -504,14 +504,16 @@ def evaluate_checkpoint(
     random_play: bool = False,
 ) -> dict[str, Any]:  # fmt: skip
     """Score an Atari run's network again: a finished run's trained ``network.pt`` (such as those
-    kept behind Table 1), else its latest checkpoint (a run stopped before its end).
+    kept behind Table 1), else its latest checkpoint (a run stopped before its end, or one that
+    diverged: its checkpoint holds the last network that was numbers).
 
     Rebuilds the envs and network from the run's record (``run.json``), plays ``plays`` games
     (the run's ``evaluation.plays`` by default) as the run's evaluation does, the network in
-    eval mode. From a checkpoint it writes ``eval_scores.json``, ``history.json``, the training
-    curve and ``checkpoint_eval.json`` (these metrics, with the env steps the checkpoint had
-    trained) beside the record; from ``network.pt`` only ``network_eval.json`` (the metrics and
-    every game's score), so the run's own evaluation stays as it was. With ``random_play``,
+    eval mode. It writes ``checkpoint_eval.json`` (these metrics, with the env steps the
+    checkpoint had trained) from a checkpoint, ``network_eval.json`` (the metrics and every
+    game's score) from ``network.pt``; for a stopped run, which had no evaluation, also
+    ``eval_scores.json``, ``history.json`` and the training curve. A finished run's own
+    evaluation stays as it was. With ``random_play``,
     random play's games on the same envs and seeds beside (``random/`` metrics). The metrics
     hold each side's mean game length (agent steps) and clipped return. Returns them. The
     record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and a module it names
@@ -525,8 +527,11 @@ def evaluate_checkpoint(
             f"{run_dir / 'run.json'} is a {record['task']} run: edr-eval scores Atari runs (a "
             "recognition run's test accuracy is in its run.json, its model in model.pt)"
         )
-    # a finished run's own evaluation stays as it was, though it keeps its checkpoint (to train on)
-    order = (NETWORK, CHECKPOINT) if record.get("status") == "finished" else (CHECKPOINT, NETWORK)
+    finished = record.get("status") == "finished"  # its own evaluation stays as it was
+    # its network.pt, though it keeps its checkpoint (to train on); a diverged run's network.pt
+    # may hold NaN, its checkpoint the last network that was numbers
+    diverged = "train/diverged_step" in (record.get("metrics") or {})
+    order = (NETWORK, CHECKPOINT) if finished and not diverged else (CHECKPOINT, NETWORK)
     source = next((run_dir / n for n in order if (run_dir / n).is_file()), None)
     if source is None:
         raise FileNotFoundError(
@@ -570,7 +575,8 @@ def evaluate_checkpoint(
         metrics = {"train/env_steps": record.get("metrics", {}).get("train/env_steps"), **metrics}
         write_json_atomic(run_dir / "network_eval.json", {**metrics, "scores": games.scores})
         return metrics
-    _write_results(run_dir, state["history"], games.scores, f"{env.name}, inputs={env.inputs}")
+    if not finished:  # a stopped run had no evaluation: this is it
+        _write_results(run_dir, state["history"], games.scores, f"{env.name}, inputs={env.inputs}")
     metrics = {"train/env_steps": state["env_steps"], **metrics}
     write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
     return metrics
