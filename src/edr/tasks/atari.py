@@ -499,6 +499,23 @@ def load_network(run_dir: str | Path) -> PAACNetwork:
     return network
 
 
+def _scored_file(run_dir: Path, record: dict[str, Any]) -> Path:
+    """What :func:`evaluate_checkpoint` scores: a finished run's ``network.pt``, though it keeps
+    its checkpoint (to train on), else the checkpoint (a stopped run; a diverged one, whose
+    ``network.pt`` may hold NaN and whose checkpoint the last network that was numbers)."""
+    diverged = "train/diverged_step" in (record.get("metrics") or {})
+    finished = record.get("status") == "finished" and not diverged
+    order = (NETWORK, CHECKPOINT) if finished else (CHECKPOINT, NETWORK)
+    source = next((run_dir / n for n in order if (run_dir / n).is_file()), None)
+    if source is None:
+        raise FileNotFoundError(
+            f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
+            f"updates and where Ctrl-C or SIGTERM stops it (nor the {NETWORK} a finished run "
+            "leaves)"
+        )
+    return source
+
+
 def evaluate_checkpoint(
     run_dir: str | Path, plays: int | None = None, trust_env_module: bool = False,
     random_play: bool = False,
@@ -528,17 +545,7 @@ def evaluate_checkpoint(
             "recognition run's test accuracy is in its run.json, its model in model.pt)"
         )
     finished = record.get("status") == "finished"  # its own evaluation stays as it was
-    # its network.pt, though it keeps its checkpoint (to train on); a diverged run's network.pt
-    # may hold NaN, its checkpoint the last network that was numbers
-    diverged = "train/diverged_step" in (record.get("metrics") or {})
-    order = (NETWORK, CHECKPOINT) if finished and not diverged else (CHECKPOINT, NETWORK)
-    source = next((run_dir / n for n in order if (run_dir / n).is_file()), None)
-    if source is None:
-        raise FileNotFoundError(
-            f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
-            f"updates and where Ctrl-C or SIGTERM stops it (nor the {NETWORK} a finished run "
-            "leaves)"
-        )
+    source = _scored_file(run_dir, record)
     node = record.get("config", {})
     if not isinstance(node, dict) or not isinstance(node.get("task"), dict):
         raise UnreadableRecord(f"{run_dir / 'run.json'} has no config.task to rebuild the run from")
