@@ -7,13 +7,15 @@
 # checkpoint (SIGTERM or Ctrl-C saves one; so does every task.checkpoint_every updates).
 # Extra arguments are passed to edr-run (say threads=1). Records: results/learning/table1_<game>.
 # SEEDS picks the seeds (default "0 1 2"): on a machine with cores to spare, two lanes of one game
-# can run beside each other, e.g. SEEDS="0 2" and SEEDS=1, never the same seed twice.
+# can run beside each other, e.g. SEEDS="0 2" and SEEDS=1, never the same seed twice. INPUTS picks
+# the inputs (default "fdr,fdr_edr"): SEEDS=2 INPUTS=fdr and SEEDS=2 INPUTS=fdr_edr split one seed
+# over two lanes (its runs' folders are named as the default lane's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 game="${1:?usage: sweeps/table1_lane.sh GAME [edr-run overrides...]}"
 shift
 EDR_RUN="${EDR_RUN:-.venv/bin/edr-run}"
 for seed in ${SEEDS:-0 1 2}; do
-  "$EDR_RUN" -m experiment=table1_atari "game=$game" "seed=$seed" task.env.inputs=fdr,fdr_edr \
+  "$EDR_RUN" -m experiment=table1_atari "game=$game" "seed=$seed" "task.env.inputs=${INPUTS:-fdr,fdr_edr}" \
     task.env_steps=5000000 "hydra.sweep.dir=results/learning/table1_$game" "$@"
 done

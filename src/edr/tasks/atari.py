@@ -499,13 +499,14 @@ def load_network(run_dir: str | Path) -> PAACNetwork:
     return network
 
 
-def _scored_file(run_dir: Path, record: dict[str, Any]) -> Path:
+def _scored_file(run_dir: Path, record: dict[str, Any]) -> tuple[Path, bool]:
     """What :func:`evaluate_checkpoint` scores: a finished run's ``network.pt``, though it keeps
     its checkpoint (to train on), else the checkpoint (a stopped run; a diverged one, whose
-    ``network.pt`` may hold NaN and whose checkpoint the last network that was numbers)."""
+    ``network.pt`` may hold NaN and whose checkpoint the last network that was numbers); and
+    whether the run finished (its own evaluation then stays as it was)."""
+    finished = record.get("status") == "finished"
     diverged = "train/diverged_step" in (record.get("metrics") or {})
-    finished = record.get("status") == "finished" and not diverged
-    order = (NETWORK, CHECKPOINT) if finished else (CHECKPOINT, NETWORK)
+    order = (NETWORK, CHECKPOINT) if finished and not diverged else (CHECKPOINT, NETWORK)
     source = next((run_dir / n for n in order if (run_dir / n).is_file()), None)
     if source is None:
         raise FileNotFoundError(
@@ -513,7 +514,7 @@ def _scored_file(run_dir: Path, record: dict[str, Any]) -> Path:
             f"updates and where Ctrl-C or SIGTERM stops it (nor the {NETWORK} a finished run "
             "leaves)"
         )
-    return source
+    return source, finished
 
 
 def evaluate_checkpoint(
@@ -544,8 +545,7 @@ def evaluate_checkpoint(
             f"{run_dir / 'run.json'} is a {record['task']} run: edr-eval scores Atari runs (a "
             "recognition run's test accuracy is in its run.json, its model in model.pt)"
         )
-    finished = record.get("status") == "finished"  # its own evaluation stays as it was
-    source = _scored_file(run_dir, record)
+    source, finished = _scored_file(run_dir, record)
     node = record.get("config", {})
     if not isinstance(node, dict) or not isinstance(node.get("task"), dict):
         raise UnreadableRecord(f"{run_dir / 'run.json'} has no config.task to rebuild the run from")
