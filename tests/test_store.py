@@ -317,6 +317,24 @@ def test_a_running_record_whose_process_is_gone_reads_as_interrupted(tmp_path) -
     assert list(listed["record"]) == [str(tmp_path / "b" / "run.json")]
 
 
+def test_a_run_that_sigterm_stopped_reads_as_interrupted_with_where_it_resumes(tmp_path) -> None:
+    import json
+
+    from edr.report.runs import load_runs
+
+    stopped = {"status": "failed", "task": "atari", "error": "interrupted"}
+    for name, extra in (("a", {"resumes_from": {"checkpoint": "checkpoint.pt", "env_steps": 65600}}),
+                        ("b", {"resumes_from": None}), ("c", {"error": "RuntimeError: boom"})):  # fmt: skip
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "run.json").write_text(json.dumps({**stopped, **extra}))
+    runs = load_runs([tmp_path]).set_index("record")
+    row = {n: runs.loc[str(tmp_path / n / "run.json")] for n in "abc"}
+    assert row["a"]["status"] == "interrupted"
+    assert row["a"]["error"].endswith("running it again resumes from env_steps 65,600")
+    assert row["b"]["status"] == "interrupted" and row["b"]["error"].endswith("starts over")
+    assert (row["c"]["status"], row["c"]["error"]) == ("failed", "RuntimeError: boom")
+
+
 def test_a_truncated_record_names_itself_and_the_remedy(compose_config, tmp_path) -> None:
     (tmp_path / "run.json").write_text('{"status": "runn')
     with pytest.raises(ValueError, match=r"run\.json is not a readable run record .*resume=false"):

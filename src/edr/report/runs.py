@@ -161,11 +161,28 @@ def _shown(path: Path) -> str:
 
 def _status(path: Path, record: dict[str, Any]) -> str:
     """The record's status; ``running`` only while a live process holds its folder (a run
-    killed by the OOM killer or a full disk leaves ``running`` behind: it is ``interrupted``)."""
+    killed by the OOM killer or a full disk leaves ``running`` behind: it is ``interrupted``), and
+    a run that Ctrl-C or SIGTERM stopped (its record ``failed``, error ``interrupted``) is
+    ``interrupted`` too: it did not fail, it resumes."""
     status = record.get("status", "legacy")  # legacy: records from before the results store
-    if status == "running" and not holder_alive(path.parent):
+    stopped = status == "failed" and record.get("error") == "interrupted"
+    if stopped or (status == "running" and not holder_alive(path.parent)):
         return "interrupted"
     return status
+
+
+def _error(record: dict[str, Any]) -> Any:
+    """The record's error; for a run that Ctrl-C or SIGTERM stopped, where running it again
+    resumes from (its checkpoint's counters, ``env_steps 65,600``), or that it starts over."""
+    if record.get("error") != "interrupted":
+        return record.get("error")
+    resumes = record.get("resumes_from")
+    if not isinstance(resumes, dict):
+        return "stopped by Ctrl-C or SIGTERM, no checkpoint: running it again starts over"
+    counters = ", ".join(
+        f"{k} {v:,}" for k, v in resumes.items() if isinstance(v, int) and not isinstance(v, bool)
+    )
+    return f"stopped by Ctrl-C or SIGTERM: running it again resumes from {counters or 'its checkpoint'}"
 
 
 def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:
@@ -174,7 +191,7 @@ def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:
         "run_dir": _shown(path.parent),
         "task": record.get("task"),
         "status": _status(path, record),
-        "error": record.get("error"),
+        "error": _error(record),
         "fingerprint": record.get("fingerprint"),
         "cell": record.get("cell"),
         "seed": record.get("seed", record.get("config", {}).get("seed")),
