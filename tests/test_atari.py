@@ -170,6 +170,24 @@ def test_a_setting_added_at_its_default_keeps_old_fingerprints(compose_config) -
     assert other[1] != today[1]
 
 
+def test_the_learning_rate_warms_up_then_decays_and_without_warmup_only_decays(
+    compose_config,
+) -> None:
+    from edr.rl.settings import OptimSettings
+    from edr.store.identity import run_identity
+
+    def factors(**settings: int) -> list[float]:
+        optim = OptimSettings(lr_decay_env_steps=1000, **settings)
+        return [round(learner.lr_factor(u, batch=100, optim=optim), 6) for u in range(11)]
+
+    assert factors() == [1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0]
+    # over the first 400 env steps: 100, 200, 300, 400 of them taken by the end of each update
+    assert factors(lr_warmup_env_steps=400)[:6] == [0.25, 0.45, 0.6, 0.7, 0.6, 0.5]
+    today = run_identity(compose_config("task=atari", "task.optim.lr_warmup_env_steps=0"))
+    before = run_identity(compose_config("task=atari", "~task.optim.lr_warmup_env_steps"))
+    assert today[1:] == before[1:]  # runs from before the setting keep their fingerprint and cell
+
+
 @pytest.mark.slow
 def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> None:
     overrides = ("task=atari", "debug=tiny", "representation.color=gray")

@@ -27,6 +27,10 @@ PAPER_ENV_STEPS_OTHERWISE = 80_000_000
 NAMED_SETTINGS = {
     "config.task.loss.entropy_coeff": ("entropy weight", None),
     "config.task.optim.lr_decay_env_steps": ("learning rate decayed to 0 at (env steps)", None),
+    "config.task.optim.lr_warmup_env_steps": (
+        "learning-rate warmup (env steps)",
+        ADDED_DEFAULTS["edr.rl.settings.OptimSettings"]["lr_warmup_env_steps"],
+    ),
     "config.task.env.num_envs": ("envs", None),
     "metrics.train/precision": (
         "precision", ADDED_DEFAULTS["edr.rl.settings.NetworkSettings"]["precision"],

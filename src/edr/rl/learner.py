@@ -4,6 +4,7 @@ learning rate decays linearly to 0 (torchrl's a2c example has the same ``update`
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import torch
@@ -32,6 +33,15 @@ def logit_spread(logits: torch.Tensor) -> float:
     return float(logits.detach().reshape(-1, logits.shape[-1]).std(0).mean())  # (N*T, A) -> ()
 
 
+def lr_factor(update: int, batch: int, optim: OptimSettings) -> float:
+    """The learning rate's factor at ``update`` (0-based; ``batch`` env steps each): rising
+    linearly over the first ``optim.lr_warmup_env_steps`` (the first update already at
+    ``batch / warmup``), decaying linearly to 0 at ``optim.lr_decay_env_steps``."""
+    warmup = optim.lr_warmup_env_steps
+    rising = min(1.0, (update + 1) * batch / warmup) if warmup else 1.0
+    return rising * max(0.0, 1.0 - update * batch / optim.lr_decay_env_steps)
+
+
 class Learner:
     """The network's optimizer and schedule, and :meth:`update`. ``batch`` is a rollout's env
     steps (envs x rollout steps): the schedule counts env steps."""
@@ -55,7 +65,7 @@ class Learner:
             adam_eps=optim.adam_eps,
         )
         self.schedule = torch.optim.lr_scheduler.LambdaLR(
-            self.optimizer, lambda update: max(0.0, 1.0 - update * batch / optim.lr_decay_env_steps)
+            self.optimizer, functools.partial(lr_factor, batch=batch, optim=optim)
         )
         # True inside the optimizer's step, where an interrupt leaves the network half-updated
         # (a checkpoint then would hold weights no update produced)

@@ -13,6 +13,7 @@ from edr.checks.config import (
     Fraction,
     ModuleName,
     NonNegativeFloat,
+    NonNegativeInt,
     PositiveFloat,
     PositiveInt,
 )
@@ -93,6 +94,7 @@ class OptimSettings:
     name: OptimizerName = "adam"  # adam (OpenAI's A2C) or rmsprop_tf (PAAC's TensorFlow RMSprop)
     lr: PositiveFloat | None = None  # None: the optimizer's default (DEFAULT_LR)
     lr_decay_env_steps: PositiveInt = 80_000_000  # the learning rate reaches 0 here
+    lr_warmup_env_steps: NonNegativeInt = 0  # it rises linearly from 0 over these first (0: none)
     max_grad_norm: PositiveFloat = 3.0  # L2 clip of the whole gradient
     rmsprop_decay: Fraction = 0.99  # rmsprop_tf: the mean square's decay
     rmsprop_eps: PositiveFloat = 0.1  # rmsprop_tf: added inside the square root

@@ -47,6 +47,7 @@ PACKAGED_INTO = {"ablation": "representation"}
 ADDED_DEFAULTS: dict[str, dict[str, Any]] = {
     "edr.rl.settings.NetworkSettings": {"input_norm": "raw", "precision": "float32"},
     "edr.rl.settings.EvalSettings": {"policy": "sample"},
+    "edr.rl.settings.OptimSettings": {"lr_warmup_env_steps": 0},
     "edr.data.datasets.kth": {"actions": None, "folds": 2, "sequences": None},
     "edr.data.datasets.ucf101": {"lists": None, "subset": False},
     "edr.tasks.recognition.train_recognition": {"normalize_input": False},
