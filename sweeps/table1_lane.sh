@@ -15,7 +15,8 @@ cd "$(dirname "$0")/.."
 game="${1:?usage: sweeps/table1_lane.sh GAME [edr-run overrides...]}"
 shift
 EDR_RUN="${EDR_RUN:-.venv/bin/edr-run}"
+inputs="${INPUTS:-fdr,fdr_edr}"
 for seed in ${SEEDS:-0 1 2}; do
-  "$EDR_RUN" -m experiment=table1_atari "game=$game" "seed=$seed" "task.env.inputs=${INPUTS:-fdr,fdr_edr}" \
+  "$EDR_RUN" -m experiment=table1_atari "game=$game" "seed=$seed" "task.env.inputs=$inputs" \
     task.env_steps=5000000 "hydra.sweep.dir=results/learning/table1_$game" "$@"
 done
