@@ -34,7 +34,7 @@ from edr.checks.command_line import check_command_line
 from edr.checks.config import ConfigError, Seed, Threads, check_config, path_problem
 from edr.report.published import load_published, lookup
 from edr.store.atomic import remove_partial_files
-from edr.store.checkpoints import UnreadableCheckpoint, WriteStopped, progress
+from edr.store.checkpoints import UnreadableCheckpoint, WriteStopped, progress, progress_text
 from edr.store.folders import (
     FOLDER_ROOM,
     Resume,
@@ -303,7 +303,7 @@ def _say_where_it_resumes(out_dir: Path, checkpoint: dict[str, Any] | None) -> N
         log.warning("%s: stopped before its first checkpoint: running the same command again "
                     "starts it over", out_dir)  # fmt: skip
     else:
-        counters = ", ".join(f"{k} {v}" for k, v in checkpoint.items() if k != "checkpoint")
+        counters = progress_text(checkpoint)
         log.warning("%s: running the same command again continues from %s (%s)", out_dir,
                     checkpoint["checkpoint"], counters or "its saved state")  # fmt: skip
 

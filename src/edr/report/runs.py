@@ -24,6 +24,7 @@ from typing import Any
 
 import pandas as pd
 
+from edr.store.checkpoints import progress_text
 from edr.store.folders import holder_alive
 from edr.store.identity import flatten
 from edr.store.records import RECORD_NAME, regular_file_bytes
@@ -179,10 +180,8 @@ def _error(record: dict[str, Any]) -> Any:
     resumes = record.get("resumes_from")
     if not isinstance(resumes, dict):
         return "stopped by Ctrl-C or SIGTERM, no checkpoint: running it again starts over"
-    counters = ", ".join(
-        f"{k} {v:,}" for k, v in resumes.items() if isinstance(v, int) and not isinstance(v, bool)
-    )
-    return f"stopped by Ctrl-C or SIGTERM: running it again resumes from {counters or 'its checkpoint'}"
+    counters = progress_text(resumes) or "its checkpoint"
+    return f"stopped by Ctrl-C or SIGTERM: running it again resumes from {counters}"
 
 
 def _row(path: Path, record: dict[str, Any]) -> dict[str, Any]:

@@ -124,3 +124,13 @@ def progress(run_dir: Path) -> dict[str, Any] | None:
         return None
     counters = {k: v for k, v in state.items() if isinstance(v, int) and not isinstance(v, bool)}
     return {"checkpoint": str(path.relative_to(run_dir)), **counters}
+
+
+def progress_text(resumes_from: dict[str, Any]) -> str:
+    """:func:`progress`'s counters for a line (``env_steps 65,600, updates 410``); its other
+    keys, and any value a hand-edited record holds that is no count, left out."""
+    return ", ".join(
+        f"{k} {v:,}"
+        for k, v in resumes_from.items()
+        if isinstance(v, int) and not isinstance(v, bool)
+    )
