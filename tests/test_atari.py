@@ -14,7 +14,7 @@ import edr.rl.learner as learner
 import edr.tasks.atari as atari
 from edr.checks.config import ConfigError
 from edr.models.paac import PAACNetwork
-from edr.rl.loss import n_step_returns
+from edr.rl.loss import n_step_returns, paac_loss
 from edr.run import run
 from edr.tasks.atari import evaluate_checkpoint, load_network
 
@@ -185,6 +185,32 @@ def test_the_learning_rate_warms_up_then_decays_and_without_warmup_only_decays(
     assert factors(lr_warmup_env_steps=400)[:6] == [0.25, 0.45, 0.6, 0.7, 0.6, 0.5]
     today = run_identity(compose_config("task=atari", "task.optim.lr_warmup_env_steps=0"))
     before = run_identity(compose_config("task=atari", "~task.optim.lr_warmup_env_steps"))
+    assert today[1:] == before[1:]  # runs from before the setting keep their fingerprint and cell
+
+
+def test_a_centred_advantage_leaves_the_policy_gradient_alone_when_the_critic_is_off_by_a_constant(
+    compose_config,
+) -> None:
+    from edr.store.identity import run_identity
+
+    torch.manual_seed(0)
+    logits = torch.randn(4, 5, 3, requires_grad=True)  # (N, T, A)
+    actions, returns = torch.randint(0, 3, (4, 5)), torch.randn(4, 5, 1)
+    values = torch.randn(4, 5, 1)
+
+    def actor_grad(form: str, offset: float) -> torch.Tensor:
+        logits.grad = None
+        loss, _ = paac_loss(logits, values + offset, actions, returns, 0.02, 0.0, 5.0, form)
+        loss.backward()
+        return logits.grad.clone()
+
+    for form in ("centred", "normalised"):
+        assert torch.allclose(actor_grad(form, 0.0), actor_grad(form, -20.0), atol=1e-6)
+    assert not torch.allclose(actor_grad("raw", 0.0), actor_grad("raw", -20.0), atol=1e-3)
+    raw, _ = paac_loss(logits, values, actions, returns, 0.02, 0.25, 5.0)
+    assert torch.equal(raw, paac_loss(logits, values, actions, returns, 0.02, 0.25, 5.0, "raw")[0])
+    today = run_identity(compose_config("task=atari", "task.loss.advantage=raw"))
+    before = run_identity(compose_config("task=atari", "~task.loss.advantage"))
     assert today[1:] == before[1:]  # runs from before the setting keep their fingerprint and cell
 
 

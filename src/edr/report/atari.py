@@ -31,6 +31,9 @@ NAMED_SETTINGS = {
         "learning-rate warmup (env steps)",
         ADDED_DEFAULTS["edr.rl.settings.OptimSettings"]["lr_warmup_env_steps"],
     ),
+    "config.task.loss.advantage": (
+        "advantage", ADDED_DEFAULTS["edr.rl.settings.LossSettings"]["advantage"],
+    ),
     "config.task.env.num_envs": ("envs", None),
     "metrics.train/precision": (
         "precision", ADDED_DEFAULTS["edr.rl.settings.NetworkSettings"]["precision"],

@@ -87,7 +87,7 @@ class Learner:
             )
             total, parts = paac_loss(
                 rollout.logits, rollout.values, rollout.actions, returns,
-                loss.entropy_coeff, loss.critic_coeff, loss.scale,
+                loss.entropy_coeff, loss.critic_coeff, loss.scale, loss.advantage,
             )  # fmt: skip
             if reason := divergence(self.net, total):
                 raise Diverged(reason, stepped=False)

@@ -3,7 +3,14 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import torch
+
+# What the actor's loss weighs log pi(a) by: PAAC's R - V as it is, or made zero-mean over the
+# rollout (a critic off by a constant then adds no noise to the policy's gradient), or zero-mean
+# and unit-std (PPO's usual normalisation)
+Advantage = Literal["raw", "centred", "normalised"]
 
 
 def n_step_returns(
@@ -28,19 +35,29 @@ def paac_loss(
     entropy_coeff: float,
     critic_coeff: float,
     scale: float,
+    advantage_form: Advantage = "raw",
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """PAAC's loss from a rollout's logits (N, T, A), values (N, T, 1), actions (N, T) and
     returns R (N, T, 1), with the advantage A = R - V (no gradient through V there):
 
     ``scale * (mean(-(log pi(a) * A + entropy_coeff * H)) + critic_coeff * mean((R - V)^2))``
-    (Clemente et al.: scale 5, entropy 0.02, critic 0.25). Returns the loss and its parts
+    (Clemente et al.: scale 5, entropy 0.02, critic 0.25), A taken over the rollout's N*T
+    steps as ``advantage_form`` says (:data:`Advantage`). Returns the loss and its parts
     (detached) for the logs.
     """
     log_pi = logits.log_softmax(-1)
     taken = log_pi.gather(-1, actions.unsqueeze(-1)).squeeze(-1)  # (N, T)
     entropy = -(log_pi.exp() * log_pi).sum(-1)
-    advantage = (returns - values).detach().squeeze(-1)
+    advantage = shaped((returns - values).detach().squeeze(-1), advantage_form)  # (N, T)
     actor = -(taken * advantage + entropy_coeff * entropy).mean()
     critic = critic_coeff * (returns - values).pow(2).mean()
     parts = {"loss_actor": actor, "loss_critic": critic, "entropy": entropy.mean()}
     return scale * (actor + critic), {k: v.detach() for k, v in parts.items()}
+
+
+def shaped(advantage: torch.Tensor, form: Advantage) -> torch.Tensor:
+    """A rollout's advantages (N, T) in ``form``, over all N*T of them."""
+    if form == "raw":
+        return advantage
+    centred = advantage - advantage.mean()
+    return centred if form == "centred" else centred / (advantage.std() + 1e-8)

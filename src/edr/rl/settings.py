@@ -21,6 +21,7 @@ from edr.models.paac import Core, Init, InputNorm
 from edr.models.precision import PrecisionChoice
 from edr.representations import EDR
 from edr.rl.envs import AtariGame, Backend, Preset
+from edr.rl.loss import Advantage
 from edr.rl.optim import OptimizerName
 
 Inputs = Literal["fdr", "fdr_edr", "edr"]
@@ -85,6 +86,7 @@ class LossSettings:
     scale: PositiveFloat = 5.0  # PAAC multiplies its loss by 5
     entropy_coeff: NonNegativeFloat = 0.02  # weight of the policy's entropy bonus
     critic_coeff: NonNegativeFloat = 0.25  # weight of (R - V)^2
+    advantage: Advantage = "raw"  # raw (PAAC's R - V), centred or normalised over the rollout
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,7 @@ ADDED_DEFAULTS: dict[str, dict[str, Any]] = {
     "edr.rl.settings.NetworkSettings": {"input_norm": "raw", "precision": "float32"},
     "edr.rl.settings.EvalSettings": {"policy": "sample"},
     "edr.rl.settings.OptimSettings": {"lr_warmup_env_steps": 0},
+    "edr.rl.settings.LossSettings": {"advantage": "raw"},
     "edr.data.datasets.kth": {"actions": None, "folds": 2, "sequences": None},
     "edr.data.datasets.ucf101": {"lists": None, "subset": False},
     "edr.tasks.recognition.train_recognition": {"normalize_input": False},
