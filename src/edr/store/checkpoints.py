@@ -122,15 +122,15 @@ def progress(run_dir: Path) -> dict[str, Any] | None:
         state = torch.load(path, weights_only=True, mmap=True)  # mmap: reads only what is used
     except (EOFError, RuntimeError, OSError, ValueError):
         return None
-    counters = {k: v for k, v in state.items() if isinstance(v, int) and not isinstance(v, bool)}
-    return {"checkpoint": str(path.relative_to(run_dir)), **counters}
+    return {"checkpoint": str(path.relative_to(run_dir)), **_counters(state)}
+
+
+def _counters(values: dict[str, Any]) -> dict[str, int]:
+    """The entries of ``values`` that are counts (ints, not bools)."""
+    return {k: v for k, v in values.items() if isinstance(v, int) and not isinstance(v, bool)}
 
 
 def progress_text(resumes_from: dict[str, Any]) -> str:
     """:func:`progress`'s counters for a line (``env_steps 65,600, updates 410``); its other
     keys, and any value a hand-edited record holds that is no count, left out."""
-    return ", ".join(
-        f"{k} {v:,}"
-        for k, v in resumes_from.items()
-        if isinstance(v, int) and not isinstance(v, bool)
-    )
+    return ", ".join(f"{k} {v:,}" for k, v in _counters(resumes_from).items())
