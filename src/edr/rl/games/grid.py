@@ -12,10 +12,18 @@ SIZE = 7  # cells per side
 CELL = 12  # pixels per cell: 7 x 12 = 84, the frame the agent sees in Atari
 FRAME = SIZE * CELL
 
-WHITE, RED, GREEN, BLUE, YELLOW = (255, 255, 255), (255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0)
+WHITE, RED, GREEN, BLUE, YELLOW = (
+    (255, 255, 255),
+    (255, 0, 0),
+    (0, 255, 0),
+    (0, 0, 255),
+    (255, 255, 0),
+)
 
 
-def paint(frame: np.ndarray, row: int, col: int, colour: tuple[int, int, int], width: int = 1) -> None:
+def paint(
+    frame: np.ndarray, row: int, col: int, colour: tuple[int, int, int], width: int = 1
+) -> None:
     """Fill ``width`` cells of ``frame`` (84, 84, 3) from (``row``, ``col``) rightwards."""
     frame[row * CELL : (row + 1) * CELL, col * CELL : (col + width) * CELL] = colour
 

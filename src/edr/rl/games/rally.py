@@ -48,7 +48,9 @@ class Rally(GridGame):
 
     def step(self, action: int):
         self.paddle = int(np.clip(self.paddle + int(action) - 1, 0, SIZE - 2))
-        self.row, self.col, self.down, self.side = _advance(self.row, self.col, self.down, self.side)
+        self.row, self.col, self.down, self.side = _advance(
+            self.row, self.col, self.down, self.side
+        )
         reward = 0.0
         if self.row == SIZE - 1:
             if self.paddle <= self.col <= self.paddle + 1:

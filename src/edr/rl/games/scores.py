@@ -30,7 +30,9 @@ def mean_score(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0) 
         env.reset(seed=seed + episode)
         total, done = 0.0, False
         while not done:
-            action = env.action_space.sample() if policy == "random" else env.unwrapped.expert_action()
+            action = (
+                env.action_space.sample() if policy == "random" else env.unwrapped.expert_action()
+            )
             _, reward, terminated, truncated, _ = env.step(action)
             total, done = total + float(reward), terminated or truncated
         returns.append(total)
