@@ -177,6 +177,10 @@ def candidate_ranking(rows: pd.DataFrame, games: list[str], min_seeds: int = 3) 
     return frame.reset_index(drop=True)
 
 
+def _two(value: float) -> str:
+    return "—" if np.isnan(value) else f"{value:.2f}"
+
+
 def own_game_markdown(runs: pd.DataFrame, source: Path) -> str:
     """The own-game screening's report: the yardsticks, the ranking for each input, the winner
     of each, and every run's score."""
@@ -201,13 +205,14 @@ def own_game_markdown(runs: pd.DataFrame, source: Path) -> str:
     ]
     for inputs, ranked in ranking.groupby("input", sort=True):
         best = ranked.iloc[0]
+        shown = ranked.drop(columns="input").astype(object).where(ranked.notna(), None)
         lines += [
             "",
             f"## Input {inputs}: {best['candidate']} first (worst game's mean "
-            f"{best['worst mean']:.2f}, min {best['worst min']:.2f}"
+            f"{_two(best['worst mean'])}, min {_two(best['worst min'])}"
             f"{'' if best['complete'] else '; incomplete'})",
             "",
-            ranked.drop(columns="input").to_markdown(index=False, floatfmt=".2f", missingval="—"),
+            shown.to_markdown(index=False, floatfmt=".2f", missingval="—"),
         ]
     runs_table = rows.sort_values(["input", "candidate", "game", "seed"])
     lines += ["", "## Every run", "", runs_table.to_markdown(index=False, floatfmt=".2f"), ""]
