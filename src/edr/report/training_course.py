@@ -32,6 +32,7 @@ DIAGNOSTICS = {
     "train/entropy": "entropy (nats)",
     "train/loss_critic": "value loss",
     "train/logit_spread": "logit spread",
+    "train/grad_norm": "gradient norm",
 }
 
 
