@@ -128,13 +128,16 @@ def own_game_rows(
     """One row per finished run of ``runs`` on a screening game (``yardsticks``: env id ->
     random and expert score, ``scores.yaml``'s by default): its candidate (the
     ``own_game_candidate`` choice), game, input, seed, evaluation mean and that mean normalised,
-    (score - random) / (expert - random)."""
+    (score - random) / (expert - random); a run that diverged (no evaluation) scores as random
+    play, so that a failed seed counts against its candidate rather than dropping out."""
     yardsticks = yardsticks or load_scores()
     done = runs[_own_game(runs, yardsticks) & (runs["status"] == "finished")]
     rows = []
     for _, run in done.iterrows():
         game = yardsticks[run["config.task.env.env_id"]]
         score = float(run["metrics.eval/mean"])
+        if np.isnan(score):  # a run that diverged played no game: no better than random play
+            score = game["random"]
         candidate = run.get("choices.own_game_candidate")
         rows.append({
             "candidate": candidate if isinstance(candidate, str) else "—",
