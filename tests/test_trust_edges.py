@@ -125,7 +125,7 @@ def test_a_signal_to_the_process_group_of_a_parallel_env_run_is_an_interruption(
     assert process.returncode in (130, 143), text[-3000:]
     assert "process failed" not in text and "Traceback" not in text, text[-3000:]
     record = json.loads((out / "run.json").read_text())
-    assert record["error"] == "interrupted" and record["resumes_from"]["env_steps"] > 0
+    assert record["status"] == "interrupted" and record["resumes_from"]["env_steps"] > 0
 
 
 def test_a_clip_whose_representation_cannot_fit_is_refused_before_it_is_made(cli, tmp_path):
