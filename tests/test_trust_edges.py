@@ -65,11 +65,11 @@ def test_a_file_where_a_folder_belongs_is_refused_in_one_line(cli, tmp_path) -> 
 
 
 def test_edr_eval_on_a_recognition_run_says_what_it_scores(tmp_path) -> None:
-    from edr.store.records import UnreadableRecord
     from edr.tasks.atari import evaluate_checkpoint
+    from edr.tasks.run_folder import RefusedFolder
 
     (tmp_path / "run.json").write_text(json.dumps({"task": "kth", "status": "finished"}))
-    with pytest.raises(UnreadableRecord, match="is a kth run: edr-eval scores Atari runs"):
+    with pytest.raises(RefusedFolder, match="is a kth run: edr-eval reads atari runs only"):
         evaluate_checkpoint(tmp_path)
 
 

@@ -170,7 +170,7 @@ def record_config(cfg: DictConfig) -> dict[str, Any]:
     return {
         key: value
         for key, value in OmegaConf.to_container(cfg, resolve=True).items()
-        if key in used or not (isinstance(value, dict) and "_target_" in value)
+        if key == "task" or key in used or not (isinstance(value, dict) and "_target_" in value)
     }
 
 

@@ -567,7 +567,7 @@ def evaluate_checkpoint(
     a module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id)
     is imported only with ``trust_env_module``.
     """
-    folder = open_run_folder(Path(run_dir), task="atari", remedy=EVAL_REMEDY,
+    folder = open_run_folder(Path(run_dir), reader="edr-eval", task="atari", remedy=EVAL_REMEDY,
                              trust_env_module=trust_env_module)  # fmt: skip
     source = _scored_file(folder)
     # train_paac's arguments, EDR built

@@ -51,13 +51,14 @@ class RunFolder:
 
 
 def open_run_folder(
-    run_dir: Path, *, task: str, remedy: str, trust_env_module: bool = False, writes: bool = True
-) -> RunFolder:
-    """``run_dir`` checked for a reader of ``task`` runs (``remedy``: what its unreadable
-    record's message advises); with ``writes``, also that files can be written beside the run's.
-    :class:`RefusedFolder` (:class:`UntrustedRecord` for a module it would import) otherwise."""
-    if not run_dir.is_dir():
-        raise FileNotFoundError(f"{run_dir}: no such run folder (edr-run writes one per run)")
+    run_dir: Path, *, reader: str, task: str, remedy: str, trust_env_module: bool = False,
+    writes: bool = True,
+) -> RunFolder:  # fmt: skip
+    """``run_dir`` checked for ``reader`` (the command, for messages) of ``task`` runs
+    (``remedy``: what its unreadable record's message advises); with ``writes``, also that
+    files can be written beside the run's. :class:`RefusedFolder` otherwise
+    (:class:`UntrustedRecord` for a target or a module that is not the suite's; an unreadable
+    record :class:`UnreadableRecord`, a missing one :class:`FileNotFoundError`)."""
     if holder_alive(run_dir):
         raise RefusedFolder(
             f"{run_dir / LOCK}: a live run holds this folder and writes into it: score it once "
@@ -67,7 +68,7 @@ def open_run_folder(
     record = read_record(path, remedy)
     if record.get("task", task) != task:
         raise RefusedFolder(
-            f"{path} is a {record['task']} run: only {task} runs are read here (a recognition "
+            f"{path} is a {record['task']} run: {reader} reads {task} runs only (a recognition "
             "run's test accuracy is in its run.json, its model in model.pt)"
         )
     if record.get("status") not in STATUSES:
@@ -97,7 +98,7 @@ def _task_node(path: Path, record: dict[str, Any], trust_env_module: bool) -> di
     try:
         check_targets(node, "config.task")
     except UntrustedRecord as error:
-        raise RefusedFolder(f"{path}: {error}") from None
+        raise UntrustedRecord(f"{path}: {error}") from None
     env = node.get("env") if isinstance(node.get("env"), dict) else {}
     named = {key: env.get(key) for key in ("env_id", "game", "env_module")}
     from edr.rl.settings import EnvSettings  # ale-py, gymnasium: only for an Atari record
