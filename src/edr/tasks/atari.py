@@ -538,7 +538,8 @@ def _scored_weights(folder: RunFolder, source: Path, network: PAACNetwork) -> di
     else:
         weights = payload_part(source, state, "state_dict", dict)
         precision = payload_part(source, state, "arguments", dict).get("precision")
-        steps = (folder.record.get("metrics") or {}).get("train/env_steps")
+        metrics = folder.record.get("metrics")
+        steps = metrics.get("train/env_steps") if isinstance(metrics, dict) else None
     check_weights(source, weights, network.state_dict())
     network.load_state_dict(weights)
     # runs from before the precision setting trained in float32
