@@ -214,7 +214,7 @@ ENV_FORMS = {
 def _atari_record(tmp_path: Path, env: dict[str, Any]) -> Path:
     run_dir = tmp_path / "downloaded"
     record = {
-        "seed": 0,
+        "status": "finished", "seed": 0,
         "config": {"task": {
             "_target_": "edr.tasks.atari.train_paac", "_partial_": True,
             "env": {"_target_": "edr.rl.settings.EnvSettings", "preset": "none", **env},
@@ -639,17 +639,20 @@ def test_a_sweep_ends_with_its_summary_line_whatever_its_cells_did(end, tmp_path
     ("text", "message"),
     [
         ("[1, 2]", "holds list, not a run record"),
-        ('{"seed": 0}', "has no config.task to rebuild the run from"),
-        ('{"seed": 0, "config": {"task": "edr.tasks.atari.train_paac"}}', "has no config.task"),
-        ('{"seed": 0, "config": [1]}', "has no config.task"),
+        ('{"seed": 0}', "status=None: expected one of running, finished, interrupted"),
+        ('{"status": "finished", "seed": 0}', "has no config.task to rebuild the run from"),
+        ('{"status": "finished", "seed": 0, "config": {"task": "edr.tasks.atari.train_paac"}}',
+         "has no config.task"),
+        ('{"status": "finished", "seed": 0, "config": [1]}', "has no config.task"),
     ],
-)
+)  # fmt: skip
 def test_a_checkpoint_evaluation_of_a_malformed_record_is_one_line(text, message, tmp_path):
     from edr.store.records import UnreadableRecord
+    from edr.tasks.run_folder import RefusedFolder
 
     run_dir = _write(tmp_path / "run", None, text)
     (run_dir / "checkpoint.pt").write_bytes(b"")
-    with pytest.raises(UnreadableRecord, match=message) as caught:
+    with pytest.raises((UnreadableRecord, RefusedFolder), match=message) as caught:
         evaluate_checkpoint(run_dir)
     assert "\n" not in str(caught.value)
 

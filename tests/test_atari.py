@@ -231,7 +231,9 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["env_steps"] == 1280
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
     assert evaluated["train/env_steps"] == 1280 and evaluated["eval/plays"] == 1
-    assert json.loads((tmp_path / "checkpoint_eval.json").read_text()) == evaluated
+    saved = json.loads((tmp_path / "checkpoint_eval_seed0_plays1.json").read_text())
+    assert len(saved.pop("scores")) == 1 and saved == evaluated
+    assert not (tmp_path / "eval_scores.json").exists()  # the run's own evaluation is its own
     bare = tmp_path.with_name(f"{tmp_path.name}_bare")  # beside the run: no run in a run's folder
     bare.mkdir()
     (bare / "run.json").write_text((tmp_path / "run.json").read_text())
@@ -269,7 +271,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     own = (tmp_path / "eval_scores.json").read_text()
     assert evaluate_checkpoint(tmp_path, plays=1)["train/env_steps"] == 2000
     assert (tmp_path / "eval_scores.json").read_text() == own
-    assert (tmp_path / "network_eval.json").is_file()
+    assert (tmp_path / "network_eval_seed0_plays1.json").is_file()
     # a finished run kept as Table 1 keeps it (run.json and network.pt) is scored again
     kept = tmp_path.with_name(f"{tmp_path.name}_kept")
     kept.mkdir()
@@ -280,9 +282,11 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert rescored["random/plays"] == 2 and rescored["random/steps_mean"] >= 1
     for side in ("eval", "random"):  # a game's clipped return counts its points' signs
         assert abs(rescored[f"{side}/clipped_mean"]) <= rescored[f"{side}/steps_mean"]
-    saved = json.loads((kept / "network_eval.json").read_text())
+    saved = json.loads((kept / "network_eval_seed0_plays2.json").read_text())
     assert len(saved.pop("scores")) == 2 and saved == rescored
-    assert sorted(p.name for p in kept.iterdir()) == ["network.pt", "network_eval.json", "run.json"]
+    assert sorted(p.name for p in kept.iterdir()) == [
+        "network.pt", "network_eval_seed0_plays2.json", "run.json"
+    ]  # fmt: skip
     # kept with its checkpoint alone: scored from it, nothing of the run's own evaluation written
     alone = tmp_path.with_name(f"{tmp_path.name}_checkpoint")
     alone.mkdir()
@@ -290,7 +294,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
         (alone / name).write_bytes((tmp_path / name).read_bytes())
     assert evaluate_checkpoint(alone, plays=1)["train/env_steps"] == 2000
     assert sorted(p.name for p in alone.iterdir()) == [
-        "checkpoint.pt", "checkpoint_eval.json", "run.json"
+        "checkpoint.pt", "checkpoint_eval_seed0_plays1.json", "run.json"
     ]  # fmt: skip
 
     # a finished run trains on from its last checkpoint to a raised budget, and not to a lower one

@@ -128,7 +128,7 @@ def test_a_cancelled_job_resumes_from_its_checkpoint_when_the_sweep_is_run_again
         _wait_for(lambda: _record(cell / "run.json").get("status") == "failed", "the record")
     finally:
         _stop(waiting)
-    assert _record(cell / "run.json")["error"] == "interrupted"
+    assert _record(cell / "run.json")["status"] == "interrupted"
 
     status, output = slurm.run(*LONG_KTH)
     assert status == 0, output[-3000:]

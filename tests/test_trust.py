@@ -77,6 +77,7 @@ def test_a_crafted_record_is_refused_before_anything_runs(key, node, kth_run, tm
 
 def test_an_atari_record_builds_only_a_partial_task_and_imports_no_named_module(tmp_path) -> None:
     record = {
+        "status": "finished",
         "seed": 0,
         "config": {"task": {"_target_": "numpy.load", "file": "x.npy", "allow_pickle": True}},
     }

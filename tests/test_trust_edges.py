@@ -65,11 +65,11 @@ def test_a_file_where_a_folder_belongs_is_refused_in_one_line(cli, tmp_path) -> 
 
 
 def test_edr_eval_on_a_recognition_run_says_what_it_scores(tmp_path) -> None:
-    from edr.store.records import UnreadableRecord
     from edr.tasks.atari import evaluate_checkpoint
+    from edr.tasks.run_folder import RefusedFolder
 
     (tmp_path / "run.json").write_text(json.dumps({"task": "kth", "status": "finished"}))
-    with pytest.raises(UnreadableRecord, match="is a kth run: edr-eval scores Atari runs"):
+    with pytest.raises(RefusedFolder, match="is a kth run: edr-eval reads atari runs only"):
         evaluate_checkpoint(tmp_path)
 
 
@@ -125,7 +125,7 @@ def test_a_signal_to_the_process_group_of_a_parallel_env_run_is_an_interruption(
     assert process.returncode in (130, 143), text[-3000:]
     assert "process failed" not in text and "Traceback" not in text, text[-3000:]
     record = json.loads((out / "run.json").read_text())
-    assert record["error"] == "interrupted" and record["resumes_from"]["env_steps"] > 0
+    assert record["status"] == "interrupted" and record["resumes_from"]["env_steps"] > 0
 
 
 def test_a_clip_whose_representation_cannot_fit_is_refused_before_it_is_made(cli, tmp_path):

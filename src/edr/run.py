@@ -46,11 +46,13 @@ from edr.store.folders import (
 )
 from edr.store.identity import job_dirname, run_identity, warn_ignored, with_root_symbols
 from edr.store.records import (
+    INTERRUPTED,
     UnreadableRecord,
     check_flat,
     git_revision,
     machine_info,
     now,
+    record_config,
     write_last_record,
     write_record,
 )
@@ -159,7 +161,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         "overrides": overrides,
         "git": git_revision(),
         "machine": machine_info(),
-        "config": portable(OmegaConf.to_container(cfg, resolve=True)),
+        "config": portable(record_config(cfg)),  # the groups its task uses
         "semantic_config": semantic,
     }
     write_record(out_dir, record)
@@ -167,10 +169,10 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     try:
         results = task(**arguments)
     except BaseException as error:
-        interrupted = isinstance(error, KeyboardInterrupt)
+        interrupted = isinstance(error, KeyboardInterrupt)  # stopped, not failed: it resumes
         record.update(
-            status="failed",
-            error="interrupted" if interrupted else f"{type(error).__name__}: {error}",
+            status=INTERRUPTED if interrupted else "failed",
+            **({} if interrupted else {"error": f"{type(error).__name__}: {error}"}),
             wall_time_s=round(time.perf_counter() - started, 3),
             ended_at=now(),
         )
@@ -182,7 +184,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
             if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
                 log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
             with contextlib.suppress(OSError):
-                log_attempt(out_dir, "interrupted" if interrupted else "failed", fingerprint)
+                log_attempt(out_dir, record["status"], fingerprint)
         raise
 
     # ---- the finished record -----------------------------------------------------------------

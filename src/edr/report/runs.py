@@ -27,7 +27,7 @@ import pandas as pd
 from edr.store.checkpoints import progress_text
 from edr.store.folders import holder_alive
 from edr.store.identity import flatten
-from edr.store.records import RECORD_NAME, regular_file_bytes
+from edr.store.records import INTERRUPTED, RECORD_NAME, regular_file_bytes, run_status
 
 # What must match for runs to be averaged into one number.
 CELL_KEYS = ["cell", "data.fingerprint", "data.source", "scale"]
@@ -161,21 +161,18 @@ def _shown(path: Path) -> str:
 
 
 def _status(path: Path, record: dict[str, Any]) -> str:
-    """The record's status; ``running`` only while a live process holds its folder (a run
-    killed by the OOM killer or a full disk leaves ``running`` behind: it is ``interrupted``), and
-    a run that Ctrl-C or SIGTERM stopped (its record ``failed``, error ``interrupted``) is
-    ``interrupted`` too: it did not fail, it resumes."""
-    status = record.get("status", "legacy")  # legacy: records from before the results store
-    stopped = status == "failed" and record.get("error") == "interrupted"
-    if stopped or (status == "running" and not holder_alive(path.parent)):
-        return "interrupted"
-    return status
+    """The record's status (:func:`run_status`: a record of a run Ctrl-C or SIGTERM stopped,
+    old or new, is ``interrupted``: it did not fail, it resumes); ``running`` only while a live
+    process holds its folder (a run killed by the OOM killer or a full disk leaves ``running``
+    behind: it is ``interrupted``)."""
+    status = run_status(record)
+    return INTERRUPTED if status == "running" and not holder_alive(path.parent) else status
 
 
 def _error(record: dict[str, Any]) -> Any:
     """The record's error; for a run that Ctrl-C or SIGTERM stopped, where running it again
     resumes from (its checkpoint's counters, ``env_steps 65,600``), or that it starts over."""
-    if record.get("error") != "interrupted":
+    if run_status(record) != INTERRUPTED:
         return record.get("error")
     resumes = record.get("resumes_from")
     if not isinstance(resumes, dict):

@@ -8,6 +8,7 @@ beside the arguments that rebuild them.
 from __future__ import annotations
 
 import logging
+import pickle
 import random
 import shutil
 from pathlib import Path
@@ -75,18 +76,27 @@ class UnreadableCheckpoint(ValueError):
     """A checkpoint that is empty, truncated or not one; the message names it and the remedy."""
 
 
-def load_checkpoint(path: Path) -> dict[str, Any]:
+# What an unreadable checkpoint's message advises: edr-run's remedy, unless the reader says its own.
+START_OVER = "pass resume=false to start the run over, or move the folder away"
+
+
+def load_checkpoint(path: Path, remedy: str = START_OVER) -> dict[str, Any]:
     """The payload ``save_checkpoint`` wrote (tensors and plain values only);
-    :class:`UnreadableCheckpoint` naming the file if it cannot be read."""
-    log.info("resuming from %s", path)
+    :class:`UnreadableCheckpoint` naming the file and ``remedy`` if it cannot be read."""
+    log.info("loading %s", path)
     try:
         return torch.load(path, weights_only=True)
     except Exception as error:  # what a damaged file raises varies (pickle, index, ...): unreadable
-        reason = " ".join(str(error).split()) or type(error).__name__
-        raise UnreadableCheckpoint(
-            f"{path} cannot be read ({reason[:200]}): pass resume=false to start the run over, "
-            "or move the folder away"
-        ) from None
+        raise UnreadableCheckpoint(f"{path} cannot be read ({_why(error)}): {remedy}") from None
+
+
+def _why(error: Exception) -> str:
+    """Why ``torch.load`` refused a file, in a few words. Its ``weights_only`` refusal is a page
+    on how to load the file anyway, by running the code it holds: never repeated."""
+    if isinstance(error, pickle.UnpicklingError) and "weights_only" in str(error):
+        return "it holds Python objects, not only tensors and plain values; it was not loaded"
+    reason = " ".join(str(error).split()) or type(error).__name__
+    return reason[:200]
 
 
 def restore(state: dict[str, Any], parts: dict[str, Any]) -> None:

@@ -1,7 +1,8 @@
 """Run records: one JSON file per run, with everything needed to trust and regenerate a number.
 
-``run.json`` holds the run's ``status`` (``running``, ``finished`` or ``failed`` with its
-``error``), its ``fingerprint`` and ``cell`` (see ``edr.store.identity``), the ``scale`` (``tiny``,
+``run.json`` holds the run's ``status`` (``running``, ``finished``, ``interrupted`` by Ctrl-C or
+SIGTERM, resumable, or ``failed`` with its ``error``; :func:`run_status` reads records from before
+``interrupted`` was a status, which say ``failed`` with error ``interrupted``), its ``fingerprint`` and ``cell`` (see ``edr.store.identity``), the ``scale`` (``tiny``,
 ``full`` or a named preset), the ``data`` it read (source, root, content fingerprint), flat
 scalar ``metrics``, the resolved config, the command-line overrides, git revision (``+dirty``
 for uncommitted changes), machine and times. Curves, histories and confusion matrices are files
@@ -20,6 +21,7 @@ import errno
 import json
 import os
 import platform
+import re
 import socket
 import stat
 import subprocess
@@ -29,10 +31,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from omegaconf import DictConfig, OmegaConf
 
 from edr.store.atomic import write_json_atomic
 
 RECORD_NAME = "run.json"
+INTERRUPTED = "interrupted"  # the status of a run Ctrl-C or SIGTERM stopped: it resumes
+# What an unreadable record's message advises: edr-run's remedy, unless the reader says its own.
+RERUN = "pass resume=false to start the run over, or move its folder away"
 
 
 OUTPUT_DIRS = ("results", "paper")  # what runs and edr-tables write: no change to the code
@@ -129,9 +135,9 @@ def regular_file_bytes(path: Path) -> bytes:
     return Path(path).read_bytes()
 
 
-def read_record(path: Path) -> dict[str, Any]:
-    """The record at ``path``; :class:`UnreadableRecord` naming it if it cannot be read or
-    parsed (a folder, a pipe, not JSON); :class:`FileNotFoundError` if there is none."""
+def read_record(path: Path, remedy: str = RERUN) -> dict[str, Any]:
+    """The record at ``path``; :class:`UnreadableRecord` naming it and ``remedy`` if it cannot
+    be read or parsed (a folder, a pipe, not JSON); :class:`FileNotFoundError` if there is none."""
     try:
         record = json.loads(regular_file_bytes(path).decode())
     except FileNotFoundError:
@@ -139,12 +145,33 @@ def read_record(path: Path) -> dict[str, Any]:
     except (OSError, ValueError, RecursionError) as error:  # ValueError: JSON's, UTF-8's
         reason = error.strerror if isinstance(error, OSError) else error
         raise UnreadableRecord(
-            f"{path} is not a readable run record ({reason}): pass resume=false to start the run "
-            "over, or move its folder away"
+            f"{path} is not a readable run record ({reason}): {remedy}"
         ) from None
     if not isinstance(record, dict):
         raise UnreadableRecord(f"{path} holds {type(record).__name__}, not a run record")
     return record
+
+
+def run_status(record: dict[str, Any]) -> str:
+    """The record's status (``legacy`` where it has none: records from before the results
+    store); a record written before ``interrupted`` was a status, ``failed`` with error
+    ``interrupted``, is :data:`INTERRUPTED`."""
+    status = record.get("status", "legacy")
+    return INTERRUPTED if status == "failed" and record.get("error") == INTERRUPTED else status
+
+
+def record_config(cfg: DictConfig) -> dict[str, Any]:
+    """What a record stores as its ``config``: ``cfg`` resolved, without the top-level parts (a
+    node with ``_target_``: ``backbone``, ``optimizer``) that its task's node does not
+    interpolate, which the run never built (an Atari run's LeNet and SGD). The fingerprint is
+    computed from ``seed`` and ``task`` alone (:mod:`edr.store.identity`): it does not change."""
+    task = json.dumps(OmegaConf.to_container(cfg.task, resolve=False))
+    used = set(re.findall(r"\$\{(\w+)", task))
+    return {
+        key: value
+        for key, value in OmegaConf.to_container(cfg, resolve=True).items()
+        if key == "task" or key in used or not (isinstance(value, dict) and "_target_" in value)
+    }
 
 
 def check_flat(metrics: dict[str, Any]) -> dict[str, Any]:

@@ -56,9 +56,9 @@ from edr.store.checkpoints import (
     save_atomic,
     save_checkpoint,
 )
-from edr.store.records import UnreadableRecord, read_record
 from edr.tasks.plots import save_score_curve
-from edr.tasks.rebuild import UntrustedRecord, instantiate_from_record
+from edr.tasks.rebuild import instantiate_from_record
+from edr.tasks.run_folder import RunFolder, check_weights, open_run_folder, payload_part
 from edr.tasks.scalars import LoggerName, open_logger
 
 NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
@@ -499,91 +499,97 @@ def load_network(run_dir: str | Path) -> PAACNetwork:
     return network
 
 
-def _scored_file(run_dir: Path, record: dict[str, Any]) -> tuple[Path, bool]:
+def _scored_file(folder: RunFolder) -> Path:
     """What :func:`evaluate_checkpoint` scores: a finished run's ``network.pt``, though it keeps
     its checkpoint (to train on), else the checkpoint (a stopped run; a diverged one, whose
-    ``network.pt`` may hold NaN and whose checkpoint the last network that was numbers); and
-    whether the run finished (its own evaluation then stays as it was)."""
-    finished = record.get("status") == "finished"
-    diverged = "train/diverged_step" in (record.get("metrics") or {})
+    ``network.pt`` may hold NaN and whose checkpoint the last network that was numbers)."""
+    finished = folder.record["status"] == "finished"
+    metrics = folder.record.get("metrics")
+    diverged = isinstance(metrics, dict) and "train/diverged_step" in metrics
     order = (NETWORK, CHECKPOINT) if finished and not diverged else (CHECKPOINT, NETWORK)
-    source = next((run_dir / n for n in order if (run_dir / n).is_file()), None)
+    source = next((folder.path / n for n in order if (folder.path / n).is_file()), None)
     if source is None:
         raise FileNotFoundError(
-            f"{run_dir} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
+            f"{folder.path} has no {CHECKPOINT}: a run writes one every task.checkpoint_every "
             f"updates and where Ctrl-C or SIGTERM stops it (nor the {NETWORK} a finished run "
             "leaves)"
         )
-    return source, finished
+    return source
+
+
+def evaluation_file(source: Path, seed: int, plays: int) -> Path:
+    """Where edr-eval writes its scores of ``source``: beside it, named for the evaluation
+    (``network_eval_seed0_plays30.json``); never over the run's own evaluation."""
+    return source.with_name(f"{source.stem}_eval_seed{seed}_plays{plays}.json")
+
+
+# What edr-eval's refusals of a record or checkpoint advise (never an edr-run option).
+EVAL_REMEDY = "score a run folder edr-run wrote, or a copy of it whose files are whole"
+
+
+def _scored_weights(folder: RunFolder, source: Path, network: PAACNetwork) -> dict[str, Any]:
+    """``source``'s weights loaded into ``network`` (refused in one line unless they are the
+    network's keys and shapes) and its precision set; the env steps the weights had trained
+    (a checkpoint's own count, else the record's)."""
+    state = load_checkpoint(source, remedy=EVAL_REMEDY)
+    if source.name == CHECKPOINT:
+        weights = payload_part(source, state, "network", dict)
+        steps, precision = payload_part(source, state, "env_steps", int), state.get("precision")
+    else:
+        weights = payload_part(source, state, "state_dict", dict)
+        precision = payload_part(source, state, "arguments", dict).get("precision")
+        metrics = folder.record.get("metrics")
+        steps = metrics.get("train/env_steps") if isinstance(metrics, dict) else None
+    check_weights(source, weights, network.state_dict())
+    network.load_state_dict(weights)
+    # runs from before the precision setting trained in float32
+    network.precision = precision if precision in ("float32", "bfloat16") else "float32"
+    return {"train/env_steps": steps}
 
 
 def evaluate_checkpoint(
     run_dir: str | Path, plays: int | None = None, trust_env_module: bool = False,
-    random_play: bool = False,
+    random_play: bool = False, seed: int | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Score an Atari run's network again: a finished run's trained ``network.pt`` (such as those
     kept behind Table 1), else its latest checkpoint (a run stopped before its end, or one that
     diverged: its checkpoint holds the last network that was numbers).
 
-    Rebuilds the envs and network from the run's record (``run.json``), plays ``plays`` games
-    (the run's ``evaluation.plays`` by default) as the run's evaluation does, the network in
-    eval mode. It writes ``checkpoint_eval.json`` (these metrics, with the env steps the
-    checkpoint had trained) from a checkpoint, ``network_eval.json`` (the metrics and every
-    game's score) from ``network.pt``; for a stopped run, which had no evaluation, also
-    ``eval_scores.json``, ``history.json`` and the training curve. A finished run's own
-    evaluation stays as it was. With ``random_play``,
-    random play's games on the same envs and seeds beside (``random/`` metrics). The metrics
-    hold each side's mean game length (agent steps) and clipped return. Returns them. The
-    record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and a module it names
-    (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id) is imported only
-    with ``trust_env_module``.
+    The folder is checked first (:func:`edr.tasks.run_folder.open_run_folder`: no live run
+    holds it, it takes a new file, its record is one edr-run wrote); then the envs and network
+    are rebuilt from the record, the file's weights checked against that network, and ``plays``
+    games (the run's ``evaluation.plays`` by default) played as the run's evaluation does, the
+    network in eval mode, its actions and the envs seeded by ``seed`` (the run's own by
+    default): the same seed gives the same scores. With ``random_play``, random play's games on
+    the same envs and seeds beside (``random/`` metrics). The metrics hold each side's mean
+    game length (agent steps) and clipped return. They, with every game's score, go to
+    :func:`evaluation_file` beside the scored file; nothing of the run's own is written over.
+    Returns them. The record builds only the suite's own parts (:mod:`edr.tasks.rebuild`), and
+    a module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id)
+    is imported only with ``trust_env_module``.
     """
-    run_dir = Path(run_dir)
-    record = read_record(run_dir / "run.json")
-    if record.get("task") not in ("atari", None):
-        raise UnreadableRecord(
-            f"{run_dir / 'run.json'} is a {record['task']} run: edr-eval scores Atari runs (a "
-            "recognition run's test accuracy is in its run.json, its model in model.pt)"
-        )
-    source, finished = _scored_file(run_dir, record)
-    node = record.get("config", {})
-    if not isinstance(node, dict) or not isinstance(node.get("task"), dict):
-        raise UnreadableRecord(f"{run_dir / 'run.json'} has no config.task to rebuild the run from")
+    folder = open_run_folder(Path(run_dir), reader="edr-eval", task="atari", remedy=EVAL_REMEDY,
+                             trust_env_module=trust_env_module)  # fmt: skip
+    source = _scored_file(folder)
     # train_paac's arguments, EDR built
-    task = instantiate_from_record(node["task"], "config.task").keywords
-    env = task["env"]
-    if env.modules and not trust_env_module:
-        raise UntrustedRecord(
-            f"{run_dir / 'run.json'} names the module {', '.join(env.modules)} (task.env: "
-            f"env_module={env.env_module}, env_id={env.env_id}, game={env.game}): making its env "
-            "imports it, which runs its code; pass --trust-env-module (trust_env_module=True) "
-            "if you trust it"
-        )
-    evaluation = task["evaluation"]
+    task = instantiate_from_record(folder.task, "config.task").keywords
+    env, evaluation = task["env"], task["evaluation"]
     if plays is not None:
         evaluation = replace(evaluation, plays=plays)
+    seed = folder.record["seed"] if seed is None else seed
     env_kwargs = _env_kwargs(env)
     network, _, _ = _network(env_kwargs, task["network"], env.frame_stack)
-    state = load_checkpoint(source)
-    weights = state["network"] if source.name == CHECKPOINT else state["state_dict"]
-    network.load_state_dict(weights)
-    network.precision = (
-        state.get("precision") if source.name == CHECKPOINT else state["arguments"].get("precision")
-    ) or "float32"  # runs from before the precision setting trained in float32
-    env_kwargs = _frames_for(network, env_kwargs)
-    play = functools.partial(_evaluate, env_kwargs=env_kwargs, frame_stack=env.frame_stack,
-                             backend=env.resolved_backend(), seed=record["seed"],
-                             settings=evaluation)  # fmt: skip
+    trained = _scored_weights(folder, source, network)
+    play = functools.partial(_evaluate, env_kwargs=_frames_for(network, env_kwargs),
+                             frame_stack=env.frame_stack, backend=env.resolved_backend(),
+                             seed=seed, settings=evaluation)  # fmt: skip
+    torch.manual_seed(seed)  # the actions sampled
     games = play(network)
-    metrics = {**_score_metrics(games), **_evaluation_mode(evaluation)}
+    metrics = {**trained, "eval/seed": seed, **_score_metrics(games),
+               **_evaluation_mode(evaluation)}  # fmt: skip
     if random_play:
+        torch.manual_seed(seed)
         metrics |= _score_metrics(play(UniformPolicy(network.policy.out_features)), "random/")
-    if source.name == NETWORK:
-        metrics = {"train/env_steps": record.get("metrics", {}).get("train/env_steps"), **metrics}
-        write_json_atomic(run_dir / "network_eval.json", {**metrics, "scores": games.scores})
-        return metrics
-    if not finished:  # a stopped run had no evaluation: this is it
-        _write_results(run_dir, state["history"], games.scores, f"{env.name}, inputs={env.inputs}")
-    metrics = {"train/env_steps": state["env_steps"], **metrics}
-    write_json_atomic(run_dir / "checkpoint_eval.json", metrics)
+    write_json_atomic(evaluation_file(source, seed, evaluation.plays),
+                      {**metrics, "scores": games.scores})  # fmt: skip
     return metrics

@@ -1,0 +1,173 @@
+"""Checking a run folder before anything reads or writes it: a folder may be someone else's,
+edited by hand, or still being written by a run.
+
+:func:`open_run_folder` refuses, in one line naming the file, what is wrong and what to do, and
+before any env is built or any game played: a folder a live run holds (its ``run.lock``), one it
+cannot write into, a record whose status, seed or config is not what ``edr-run`` writes (the
+config checked as ``edr-run`` checks its overrides, :func:`edr.checks.config.check_config`, once
+:mod:`edr.tasks.rebuild` has refused targets that are not the suite's). :func:`check_weights`
+refuses a checkpoint or network file whose weights are not those of the network the record
+describes (a foreign file, a bare tensor, the other input's network).
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from edr.checks.config import ConfigError, Seed, check_config, mismatch, writable_folder_problem
+from edr.store.folders import LOCK, holder_alive
+from edr.store.records import INTERRUPTED, RECORD_NAME, read_record
+from edr.tasks.rebuild import UntrustedRecord, check_targets
+
+STATUSES = ("running", "finished", INTERRUPTED, "failed")  # what edr-run writes
+# What a refused record's message advises: the record is the run's; edr-eval reads it as it is.
+RESTORE = "restore the value edr-run wrote, or score a copy of the run that holds it"
+
+
+class RefusedFolder(ValueError):
+    """A run folder that is not read or written; the message is one line naming the file."""
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """A checked run folder: its path, its record, and the ``task`` node of its config (the
+    suite's own targets only, every value as its target declares)."""
+
+    path: Path
+    record: dict[str, Any]
+    task: dict[str, Any]
+
+    @property
+    def record_path(self) -> Path:
+        return self.path / RECORD_NAME
+
+
+def open_run_folder(
+    run_dir: Path, *, reader: str, task: str, remedy: str, trust_env_module: bool = False,
+    writes: bool = True,
+) -> RunFolder:  # fmt: skip
+    """``run_dir`` checked for ``reader`` (the command, for messages) of ``task`` runs
+    (``remedy``: what its unreadable record's message advises); with ``writes``, also that
+    files can be written beside the run's. :class:`RefusedFolder` otherwise
+    (:class:`UntrustedRecord` for a target or a module that is not the suite's; an unreadable
+    record :class:`UnreadableRecord`, a missing one :class:`FileNotFoundError`)."""
+    if holder_alive(run_dir):
+        raise RefusedFolder(
+            f"{run_dir / LOCK}: a live run holds this folder and writes into it: score it once "
+            "that run has stopped, or score a copy of the folder"
+        )
+    path = run_dir / RECORD_NAME
+    record = read_record(path, remedy)
+    if record.get("task", task) != task:
+        raise RefusedFolder(
+            f"{path} is a {record['task']} run: {reader} reads {task} runs only (a recognition "
+            "run's test accuracy is in its run.json, its model in model.pt)"
+        )
+    if record.get("status") not in STATUSES:
+        raise RefusedFolder(
+            f"{path}: status={record.get('status')!r}: expected one of {', '.join(STATUSES)} "
+            f"(what edr-run writes); {RESTORE}"
+        )
+    if expected := mismatch(record.get("seed"), Seed):
+        raise RefusedFolder(f"{path}: seed={record.get('seed')!r}: expected {expected}; {RESTORE}")
+    node = _task_node(path, record, trust_env_module)
+    if writes and (problem := writable_folder_problem(run_dir)):
+        raise RefusedFolder(
+            f"{run_dir}: expected {problem}; nothing was scored: score a copy of the folder in "
+            "a place this process can write"
+        )
+    return RunFolder(run_dir, record, node)
+
+
+def _task_node(path: Path, record: dict[str, Any], trust_env_module: bool) -> dict[str, Any]:
+    """The record's ``config.task``, checked in this order: the targets it names (nothing
+    imported that is not the suite's), the modules making its env would import (only with
+    ``trust_env_module``), then every value as ``edr-run`` checks its overrides."""
+    config = record.get("config")
+    node = config.get("task") if isinstance(config, dict) else None
+    if not isinstance(node, dict):
+        raise RefusedFolder(f"{path} has no config.task to rebuild the run from; {RESTORE}")
+    try:
+        check_targets(node, "config.task")
+    except UntrustedRecord as error:
+        raise UntrustedRecord(f"{path}: {error}") from None
+    env = node.get("env") if isinstance(node.get("env"), dict) else {}
+    named = {key: env.get(key) for key in ("env_id", "game", "env_module")}
+    from edr.rl.settings import EnvSettings  # ale-py, gymnasium: only for an Atari record
+
+    modules = EnvSettings.modules.fget(types.SimpleNamespace(**named))  # as the envs would
+    if modules and not trust_env_module:
+        raise UntrustedRecord(
+            f"{path} names the module {', '.join(modules)} (task.env: env_module="
+            f"{named['env_module']}, env_id={named['env_id']}, game={named['game']}): making its "
+            "env imports it, which runs its code; pass --trust-env-module (trust_env_module=True) "
+            "if you trust it"
+        )
+    try:
+        cfg = OmegaConf.create({"seed": record["seed"], "task": node})
+        check_config(cfg, entry={"seed": Seed})
+    except ConfigError as error:
+        raise RefusedFolder(f"{path}: config.{error}; {RESTORE}") from None
+    except OmegaConfBaseException as error:  # an interpolation, a key OmegaConf cannot hold
+        reason = " ".join(str(error).split())[:200]
+        raise RefusedFolder(
+            f"{path}: config.task is not a resolved config ({reason}); {RESTORE}"
+        ) from None
+    return node
+
+
+def check_weights(path: Path, weights: Any, expected: Mapping[str, torch.Tensor]) -> None:
+    """:class:`RefusedFolder` unless ``weights`` (what ``path`` holds as a network's state
+    dict) has the keys of ``expected`` (the state dict of the network the run's record
+    describes), each a tensor of the same shape."""
+    remedy = "score the file with the run folder that wrote it (its run.json beside it)"
+    if not isinstance(weights, Mapping):
+        raise RefusedFolder(
+            f"{path} holds {type(weights).__name__}, not a network's weights: {remedy}"
+        )
+    missing = [key for key in expected if key not in weights]
+    extra = [key for key in weights if key not in expected]
+    if missing or extra:
+        said = "; ".join(
+            f"{what} {', '.join(map(str, keys[:3]))}{' ...' if len(keys) > 3 else ''}"
+            for what, keys in (("lacks", missing), ("has", extra)) if keys
+        )  # fmt: skip
+        raise RefusedFolder(
+            f"{path} holds the weights of another network than its run.json describes ({said}): "
+            f"{remedy}"
+        )
+    for key, tensor in expected.items():
+        found = weights[key]
+        if not isinstance(found, torch.Tensor) or found.shape != tensor.shape:
+            shape = tuple(found.shape) if isinstance(found, torch.Tensor) else type(found).__name__
+            raise RefusedFolder(
+                f"{path}: {key} is {shape}, where the network its run.json describes takes "
+                f"{tuple(tensor.shape)} (another input, game or network?): {remedy}"
+            )
+
+
+def payload_part(path: Path, payload: Any, key: str, kind: type) -> Any:
+    """``payload[key]`` (what ``path`` holds: a checkpoint's or a network file's dict), which must
+    be a ``kind``; :class:`RefusedFolder` naming what the file holds otherwise."""
+    if not isinstance(payload, dict):
+        raise RefusedFolder(
+            f"{path} holds {type(payload).__name__}, not what edr-run writes (a dict with "
+            f"'{key}'): score the run folder that wrote it"
+        )
+    value = payload.get(key)
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        keys = ", ".join(map(str, list(payload)[:5]))
+        raise RefusedFolder(
+            f"{path}: '{key}' is {type(value).__name__ if key in payload else 'missing'}, "
+            f"expected {kind.__name__} (the file holds {keys or 'nothing'}): not what edr-run "
+            "writes; score the run folder that wrote it"
+        )
+    return value

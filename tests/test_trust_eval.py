@@ -1,0 +1,246 @@
+"""edr-eval never harms the folder it scores (issue 71, items 1 and 4; issue 68, item 3): a run
+folder is checked before anything reads or writes it, each class of bad folder is one line
+naming the file, what is wrong and a remedy edr-eval accepts, before any env is built, with
+the folder byte for byte as it was; scores go beside the run's, in a file named for the
+evaluation; the same seed gives the same scores. And a stopped run's record says
+``interrupted``, an Atari record's config holds the groups its task uses."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+import edr.tasks.atari as atari
+from edr.evaluate import main as evaluate_main
+from edr.models.paac import PAACNetwork
+from edr.report.runs import load_runs
+from edr.run import run
+from edr.store.folders import LOCK, process_identity
+from edr.store.identity import run_identity
+from test_adversarial_records import SRC, needs_mount
+
+TINY = ("task=atari", "debug=tiny", "task.env.inputs=fdr", "task.env_steps=20",
+        "task.evaluation.plays=1", "task.evaluation.max_steps=20", "task.network.precision=float32",
+        "task.logger=")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> tuple[Path, Any]:
+    """One tiny finished Atari run (one update of 4 envs), for every test here; its config."""
+    from conftest import _compose
+
+    out = tmp_path_factory.mktemp("atari") / "run"
+    cfg = _compose(*TINY, f"out_dir={out}")
+    run(cfg)
+    return out, cfg
+
+
+@pytest.fixture
+def folder(trained, tmp_path) -> Path:
+    """A copy of the trained run's folder, to tamper with."""
+    return Path(shutil.copytree(trained[0], tmp_path / "run"))
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder``, by its path there, with its bytes."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.fixture
+def no_env(monkeypatch) -> None:
+    """Building an env fails the test: a refusal comes before any."""
+
+    def built(**kwargs: Any) -> None:
+        raise AssertionError("an env was built before the refusal")
+
+    monkeypatch.setattr(atari, "make_atari_env", built)
+
+
+def _refused(folder: Path, capsys, *argv: str) -> str:
+    """``edr-eval folder argv``: refused (exit 2) in one line, the folder untouched; the line."""
+    before = _files(folder)
+    with pytest.raises(SystemExit) as stopped:
+        evaluate_main([str(folder), *argv])
+    line = capsys.readouterr().err
+    assert stopped.value.code == 2, line
+    assert line.startswith("edr-eval: ") and line.count("\n") == 1, line
+    assert "resume=false" not in line and "weights_only" not in line, line
+    assert _files(folder) == before
+    return line
+
+
+def _tamper(folder: Path, change) -> None:
+    record = json.loads((folder / "run.json").read_text())
+    change(record)
+    (folder / "run.json").write_text(json.dumps(record))
+
+
+def _env(record: dict) -> dict:
+    return record["config"]["task"]["env"]
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda r: r.pop("seed"), "seed=None: expected an integer"),
+        (lambda r: r.update(seed="zero"), "seed='zero': expected an integer"),
+        (lambda r: r.update(status="done"), "status='done': expected one of"),
+        (lambda r: _env(r).update(frame_stack=0), "config.task.env.frame_stack=0: expected"),
+        (lambda r: r["config"]["task"]["evaluation"].update(max_steps=0),
+         "config.task.evaluation.max_steps=0: expected"),
+        (lambda r: _env(r).update(game="Joust2"), "config.task.env.game='Joust2': expected an ALE"),
+        (lambda r: _env(r).update(_target_="edr.rl.settings.NetworkSettings"),
+         "config.task.env.game: not a setting of edr.rl.settings.NetworkSettings"),
+        (lambda r: _env(r).update(_target_="os.system"), "config.task.env._target_=os.system"),
+        (lambda r: r["config"].pop("task"), "has no config.task"),
+    ],
+)  # fmt: skip
+def test_a_tampered_record_is_refused_before_any_env(change, said, folder, no_env, capsys) -> None:
+    _tamper(folder, change)
+    line = _refused(folder, capsys)
+    assert f"{folder / 'run.json'}: " in line or f"{folder / 'run.json'} " in line
+    assert said in line, line
+
+
+def test_a_folder_a_live_run_holds_is_refused(folder, no_env, capsys) -> None:
+    holder = {"host": socket.gethostname(), "pid": os.getpid(),
+              "process": process_identity(os.getpid())}  # fmt: skip
+    (folder / LOCK).write_text(json.dumps(holder))
+    line = _refused(folder, capsys)
+    assert f"{folder / LOCK}: a live run holds this folder" in line
+
+
+@pytest.mark.slow  # a command of its own (about 10 s)
+@needs_mount
+def test_a_read_only_folder_is_refused_before_any_game(folder) -> None:
+    before = _files(folder)
+    command = (f"mount --bind {folder} {folder} && mount -o remount,ro,bind {folder} && "
+               f"{sys.executable} -m edr.evaluate {folder}")  # fmt: skip
+    said = subprocess.run(["unshare", "-m", "sh", "-c", command], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": SRC}, timeout=300)  # fmt: skip
+    assert said.returncode == 2, said.stderr[-2000:]
+    (line,) = said.stderr.strip().splitlines()
+    assert line.startswith(f"edr-eval: {folder}: expected a folder this process can write")
+    assert "score a copy of the folder" in line and "evaluation" not in said.stdout
+    assert _files(folder) == before
+
+
+class _Foreign:
+    """Pickled, an object ``torch.load(weights_only=True)`` refuses to build."""
+
+    def __reduce__(self):
+        return (datetime.date, (2020, 1, 1))
+
+
+@pytest.mark.parametrize(
+    ("payload", "said"),
+    [
+        (torch.zeros(3), "network.pt holds Tensor, not what edr-run writes"),
+        ({"model": {}, "epoch": 3}, "network.pt: 'state_dict' is missing, expected dict"),
+        ({"state_dict": {"w": torch.zeros(2)}, "arguments": {}},
+         "network.pt holds the weights of another network than its run.json describes"),
+        ({"x": _Foreign()}, "network.pt cannot be read (it holds Python objects"),
+    ],
+)  # fmt: skip
+def test_a_foreign_network_file_is_refused(payload, said, folder, capsys) -> None:
+    torch.save(payload, folder / "network.pt")
+    line = _refused(folder, capsys)
+    assert said in line and "score " in line, line
+
+
+def test_the_other_inputs_network_is_refused(folder, capsys) -> None:
+    saved = torch.load(folder / "network.pt", weights_only=True)
+    arguments = {**saved["arguments"], "in_channels": 20}  # FDR+EDR: 5 channels a frame
+    other = PAACNetwork(**{k: v for k, v in arguments.items() if k != "precision"})
+    torch.save({"state_dict": other.state_dict(), "arguments": arguments}, folder / "network.pt")
+    line = _refused(folder, capsys)
+    # its first layer normalises 5 channels a frame, this run's network 3
+    assert "network.pt: normalise.weight is (5,), where the network its run.json" in line
+    assert "takes (3,) (another input, game or network?)" in line
+
+
+def test_a_foreign_checkpoint_of_a_stopped_run_is_refused(folder, capsys) -> None:
+    _tamper(folder, lambda r: r.update(status="interrupted"))
+    torch.save({"network": torch.zeros(3), "env_steps": 20}, folder / "checkpoint.pt")
+    line = _refused(folder, capsys)
+    assert "checkpoint.pt: 'network' is Tensor, expected dict" in line
+
+
+def test_the_same_seed_scores_the_same_beside_the_runs_own_evaluation(
+    folder, capsys, monkeypatch
+) -> None:
+    sampled: list[torch.Tensor] = []  # every action the network drew, in order
+    multinomial = torch.multinomial
+
+    def recorded(*args: Any, **kwargs: Any) -> torch.Tensor:
+        sampled.append(multinomial(*args, **kwargs))
+        return sampled[-1]
+
+    monkeypatch.setattr(torch, "multinomial", recorded)
+    own = _files(folder)
+    first = atari.evaluate_checkpoint(folder, plays=2, seed=3)
+    first_actions, sampled[:] = torch.cat(sampled), []
+    scored = folder / "network_eval_seed3_plays2.json"
+    saved = json.loads(scored.read_text())
+    scores = saved.pop("scores")
+    assert first["eval/seed"] == 3 and len(scores) == 2 and saved == first
+    evaluate_main([str(folder), "--plays", "2", "--seed", "3"])  # the same network, seed, games
+    assert json.loads(capsys.readouterr().out) == first
+    assert json.loads(scored.read_text())["scores"] == scores
+    assert torch.equal(torch.cat(sampled), first_actions)  # action for action
+    sampled[:] = []
+    atari.evaluate_checkpoint(folder, plays=2, seed=4)
+    assert not torch.equal(torch.cat(sampled), first_actions)
+    written = {scored.name, "network_eval_seed4_plays2.json"}
+    assert set(_files(folder)) - set(own) == written  # nothing else written, nothing changed
+    assert all(_files(folder)[name] == data for name, data in own.items())
+    # a stopped run: scored from its checkpoint, and still none of the run's own files written
+    _tamper(folder, lambda r: r.update(status="interrupted"))
+    own = _files(folder)
+    stopped = atari.evaluate_checkpoint(folder, plays=1)  # the run's own seed, 0
+    assert stopped["eval/seed"] == 0 and stopped["train/env_steps"] == 20
+    assert set(_files(folder)) - set(own) == {"checkpoint_eval_seed0_plays1.json"}
+
+
+def test_a_bad_seed_is_one_line(folder, capsys) -> None:
+    with pytest.raises(SystemExit) as stopped:
+        evaluate_main([str(folder), "--seed", "-1"])
+    assert stopped.value.code == 2
+    assert capsys.readouterr().err == "edr-eval: --seed=-1: expected a number >= 0\n"
+
+
+def test_an_atari_record_holds_the_groups_its_task_uses(trained) -> None:
+    out, cfg = trained
+    record = json.loads((out / "run.json").read_text())
+    assert "backbone" not in record["config"] and "optimizer" not in record["config"]
+    assert record["config"]["representation"]["_target_"] == "edr.representations.EDR"
+    assert record["config"]["paths"] and record["config"]["seed"] == 0
+    assert record["fingerprint"] == run_identity(cfg)[1]  # from seed and task, as before
+
+
+def test_stopped_runs_read_as_interrupted_old_and_new(tmp_path) -> None:
+    resumes = {"checkpoint": "checkpoint.pt", "env_steps": 20}
+    for name, record in (("old", {"status": "failed", "error": "interrupted"}),
+                         ("new", {"status": "interrupted"})):  # fmt: skip
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "run.json").write_text(
+            json.dumps({**record, "task": "atari", "resumes_from": resumes})
+        )
+    runs = load_runs([tmp_path]).set_index("run_dir")
+    for name in ("old", "new"):
+        row = runs.loc[str(tmp_path / name)]
+        assert row["status"] == "interrupted"
+        assert (
+            row["error"] == "stopped by Ctrl-C or SIGTERM: running it again resumes from "
+            "env_steps 20"
+        )
