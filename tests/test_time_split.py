@@ -36,7 +36,7 @@ def _assert_split_in_time(train: VideoSet, test: VideoSet, lengths: dict[Path, i
     source = _frame_numbers(lengths)
     torch.manual_seed(0)
     for shuffle in (False, True):
-        settings = {"frames": clip, "crop": 4, "shuffle_frames": shuffle}
+        settings = {"frames": clip, "crop": 4, "control": "shuffled_in_clip" if shuffle else None}
         trained = {v.path: set() for v in train.videos}
         tested = {v.path: set() for v in test.videos}
         train_set = ClipDataset(train, source, train=True, scales=(1.0, 0.66), **settings)
@@ -108,7 +108,10 @@ def test_a_run_split_in_time_says_so_in_its_record(compose_config, tmp_path) -> 
     data = read_record(out / "run.json")["data"]
     assert data["source"] == "real clips, split in time"
     assert data["label"] == "real clips (6 videos), split in time"
-    assert "not the paper's protocol" in data["split"] and data["frame_order"] == "shuffled"
+    assert (
+        "not the paper's protocol" in data["split"]
+        and data["frame_order"] == "shuffled within each clip"
+    )
     assert data["train_videos"] == data["test_videos"] == 6 and data["test_clips"] == 6
     model = load_model(out).eval()
     assert model.input_norm is not None and int(model.input_norm.num_batches_tracked) > 0
