@@ -39,6 +39,7 @@ BASE_COLUMNS = ["record", "run_dir", "task", "status", "error", "fingerprint", "
 # The files beside a record that a table or figure reads, and the tasks whose finished runs must
 # have them; each is read only if it lies inside its run folder.
 HISTORY, CONFUSION, PIXEL_RESPONSE = "history.json", "confusion.json", "pixel_response.png"
+PREDICTIONS = "predictions.json"  # per-video test predictions (edr.tasks.predictions)
 REQUIRED_FILES = {"dvs_transfer": (CONFUSION,), "representation_demo": (PIXEL_RESPONSE,)}
 MAPPINGS = ("data", "choices", "metrics", "machine", "config", "semantic_config")
 STRINGS = ("task", "status", "error", "fingerprint", "cell", "scale", "git", "ended_at")
