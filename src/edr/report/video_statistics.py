@@ -142,15 +142,19 @@ def by_person_block(done: pd.DataFrame) -> str:
     if done.empty or "data.split" not in done:
         return ""
     person = done[done["data.split"].astype(str).str.startswith("by person")]
+    person = person.assign(folds=person.get("data.folds", pd.Series(2, index=person.index)))
     blocks = []
-    for (label, _), runs in person.groupby(["data.label", "data.fingerprint"], sort=True):
+    sets = person.groupby(["data.label", "data.fingerprint", "folds"], sort=True, dropna=False)
+    for (label, _, folds), runs in sets:
         rows, missing = [], 0
         for (name, _), cell in runs.groupby(["input", "cell"], sort=True):
             made = _row(str(name), cell)
             missing += made is None
             if made is not None:
                 rows.append(made)
-        blocks.append(_block(str(label), rows, missing))
+        persons = len({r["person"] for _, v in rows for r in v.to_dict("records")})
+        every = " (every person held out once)" if persons and persons == folds else ""
+        blocks.append(_block(f"{label}, {folds:g} person folds{every}", rows, missing))
     if not blocks:
         return ""
     return "\n".join(["## Split by person, counted in videos", "", _METHOD, "", *blocks])
