@@ -105,6 +105,16 @@ def _check_files(run_dir: Path, record: dict[str, Any]) -> None:
         isinstance(confusion, dict) and {"matrix", "classes"} <= confusion.keys()
     ):
         raise BadRecord(f"{CONFUSION} has no matrix and classes")
+    predictions = run_json(run_dir, PREDICTIONS)
+    entry = {"video", "person", "scenario", "true", "predicted", "items"}
+    if predictions is not None and not (
+        isinstance(predictions, dict)
+        and isinstance(predictions.get("videos"), list)
+        and all(isinstance(v, dict) and entry <= v.keys() for v in predictions["videos"])
+    ):
+        raise BadRecord(
+            f"{PREDICTIONS} has no list of videos, each with {', '.join(sorted(entry))}"
+        )
 
 
 def check_record(record: Any) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from edr.report.runs import PREDICTIONS, BadRecord, run_json
+from edr.report.runs import PREDICTIONS, run_json
 
 BOOTSTRAP_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
@@ -70,12 +70,10 @@ def confounds(videos: pd.DataFrame) -> tuple[str, list[str]]:
 
 
 def _predictions(run_dir: str) -> list[dict[str, Any]] | None:
-    """A run's per-video entries, None where it kept none (records before predictions.json)."""
-    try:
-        kept = run_json(Path(run_dir), PREDICTIONS)
-    except BadRecord:
-        return None
-    return kept["videos"] if isinstance(kept, dict) else None
+    """A run's per-video entries (checked as its record was read, :mod:`edr.report.runs`),
+    None where it kept none (records before predictions.json)."""
+    kept = run_json(Path(run_dir), PREDICTIONS)
+    return None if kept is None else kept["videos"]
 
 
 def _row(label: str, runs: pd.DataFrame) -> tuple[dict[str, Any], pd.DataFrame] | None:
