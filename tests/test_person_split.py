@@ -181,3 +181,23 @@ def test_a_cross_validated_run_pools_its_folds(compose_config, tmp_path) -> None
     assert resumed["eval/fold0/accuracy"] == metrics["eval/fold0/accuracy"]
     assert (out / "fold0" / "fold.json").stat().st_mtime_ns == before
     assert (out / "fold1" / "fold.json").is_file()
+
+
+@pytest.mark.slow  # 12 folds of debug=tiny training on the 14 real videos: about 10 s of CPU
+def test_every_real_person_held_out_once_keeps_each_video_once(compose_config, tmp_path) -> None:
+    if not (REAL_VIDEO / "kth").is_dir():
+        pytest.skip(f"no real KTH clips at {REAL_VIDEO / 'kth'} (../shared/real-video is absent)")
+    out = tmp_path / "run"
+    metrics = run(compose_config(
+        "experiment=kth_person", "debug=tiny", "task.videos.folds=persons",
+        f"task.data_root={REAL_VIDEO / 'kth'}",
+        f"task.videos.sequences={REAL_VIDEO / 'splits/kth/00sequences.txt'}",
+        f"task.cache_dir={tmp_path / 'cache'}", "task.logger=", f"out_dir={out}",
+    ))  # fmt: skip
+    pooled = json.loads((out / "predictions.json").read_text())["videos"]
+    assert len(pooled) == 14 and len({e["video"] for e in pooled}) == 14
+    assert {e["fold"] for e in pooled} == set(range(12))
+    assert read_record(out / "run.json")["data"]["folds"] == 12
+    assert all(len(e["items"]) == 4 and len(e["soft_vote"]) == 3 for e in pooled)
+    assert {e["scenario"] for e in pooled if e["true"] == "boxing"} == {"d1", "d3", "d4"}
+    assert metrics["eval/video_accuracy"] == np.mean([e["predicted"] == e["true"] for e in pooled])
