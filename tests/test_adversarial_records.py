@@ -100,6 +100,8 @@ SIDE_FILES = {
         "representation_demo", None, None, "pixel_response.png is missing"),
     "confusion.json without a matrix": (
         "dvs_transfer", "confusion.json", '{"classes": []}', "no matrix and classes"),
+    "predictions.json without its videos": (
+        "kth", "predictions.json", '{"videos": [{"video": "v"}]}', "has no list of videos"),
 }  # fmt: skip
 
 
@@ -119,7 +121,9 @@ def test_a_broken_or_missing_file_beside_a_record_is_listed(case, tmp_path) -> N
 
 
 # ---- case 3: no file a record points at is read outside its run folder -------------------------
-@pytest.mark.parametrize("name", ["pixel_response.png", "history.json", "confusion.json"])
+@pytest.mark.parametrize(
+    "name", ["pixel_response.png", "history.json", "confusion.json", "predictions.json"]
+)
 def test_a_file_linked_outside_its_run_folder_is_not_read(name, tmp_path) -> None:
     secret = tmp_path / "secret.txt"
     secret.write_text('[{"epoch": 1, "secret": "leaked"}]')

@@ -25,17 +25,22 @@ from edr.data.datasets import (
 )
 from edr.data.synthetic import write_synthetic_kth
 from edr.run import run
+from edr.store.identity import run_identity
 from edr.store.records import read_record
 from real_video import REAL_VIDEO
 
 ACTIONS = ["boxing", "running", "walking"]
+REPO = Path(__file__).resolve().parents[1]
 
 
-def _folds(root: Path, folds: int, **kwargs) -> list[tuple[list[Video], list[Video]]]:
+def _folds(root: Path, folds: int | str, **kwargs) -> list[tuple[list[Video], list[Video]]]:
+    count = kth(root, protocol="person_folds", actions=ACTIONS, folds=folds, **kwargs).person_fold[
+        1
+    ]
     return [
         tuple(list(kth(root, train=t, protocol="person_folds", actions=ACTIONS, folds=folds,
                        fold=f, **kwargs).videos) for t in (True, False))
-        for f in range(folds)
+        for f in range(count)
     ]  # fmt: skip
 
 
@@ -65,6 +70,11 @@ def test_generated_kth_split_by_person_is_cross_validated(tmp_path) -> None:
                                width=16)  # fmt: skip
     for folds in (2, 4):
         _assert_cross_validated(_folds(root, folds))
+    every_person = _folds(root, "persons")  # leave one person out: a fold per person
+    _assert_cross_validated(every_person)
+    assert [len({v.group for v in test}) for _, test in every_person] == [1, 1, 1, 1]
+    with pytest.raises(ConfigError, match=r"task\.videos\.fold=4: the folds are 0 to 3"):
+        kth(root, protocol="person_folds", folds="persons", fold=4)
     with pytest.raises(ConfigError, match=r"task\.videos\.fold=2: the folds are 0 to 1"):
         kth(root, protocol="person_folds", folds=2, fold=2)
     with pytest.raises(ConfigError, match=r"\['jumping'\] are not KTH actions"):
@@ -113,6 +123,26 @@ def test_the_real_kth_clips_split_by_person(tmp_path) -> None:
     _assert_cross_validated(splits)
     train, test = splits[0]
     assert len(train) + len(test) == 14 and all(len(v.segments) == 4 for v in train + test)
+    every_person = _folds(REAL_VIDEO / "kth", "persons", sequences=sequences)
+    _assert_cross_validated(every_person)  # 12 folds: each person held out once
+    held_out = [sorted({v.group for v in test}) for _, test in every_person]
+    assert held_out == [[p] for p in ["01", "03", "04", "07", "09", "14", "15", "16", "20",
+                                      "21", "23", "25"]]  # fmt: skip
+
+
+def test_new_options_at_their_defaults_keep_the_committed_by_person_fingerprints(
+    compose_config,
+) -> None:
+    """task.frame_control (null) and task.videos.folds (2) leave a committed kth_person run's
+    identity as it was; folds=persons is another run."""
+    records = sorted((REPO / "results/learning/kth_person").glob("*/run.json"))
+    if not records:
+        pytest.skip("no committed kth_person records")
+    record = json.loads(records[0].read_text())
+    overrides = [o for o in record["overrides"] if not o.startswith("threads")]
+    assert run_identity(compose_config(*overrides))[1] == record["fingerprint"]
+    other = run_identity(compose_config(*overrides, "task.videos.folds=persons"))[1]
+    assert other != record["fingerprint"]
 
 
 @pytest.mark.slow  # two folds of debug=tiny training: seconds
@@ -134,6 +164,13 @@ def test_a_cross_validated_run_pools_its_folds(compose_config, tmp_path) -> None
              for k in (0, 1)]  # fmt: skip
     assert (matrix == folds[0] + folds[1]).all() and matrix.sum() == 12
     assert metrics["eval/accuracy"] == pytest.approx(matrix.trace() / 12)
+    pooled = json.loads((out / "predictions.json").read_text())["videos"]  # each video once
+    assert sorted(e["video"] for e in pooled) == sorted(
+        p.name.removesuffix("_uncomp.avi") for c in ACTIONS for p in (root / c).glob("*.avi")
+    )
+    assert {e["fold"] for e in pooled} == {0, 1} and all(len(e["items"]) == 1 for e in pooled)
+    assert metrics["eval/video_accuracy"] == np.mean([e["predicted"] == e["true"] for e in pooled])
+    assert metrics["eval/item_accuracy"] == metrics["eval/accuracy"]
     # a run stopped after its first fold trains only the second when it resumes
     (out / "fold1" / "fold.json").unlink()
     (out / "run.json").write_text(
@@ -144,3 +181,23 @@ def test_a_cross_validated_run_pools_its_folds(compose_config, tmp_path) -> None
     assert resumed["eval/fold0/accuracy"] == metrics["eval/fold0/accuracy"]
     assert (out / "fold0" / "fold.json").stat().st_mtime_ns == before
     assert (out / "fold1" / "fold.json").is_file()
+
+
+@pytest.mark.slow  # 12 folds of debug=tiny training on the 14 real videos: about 10 s of CPU
+def test_every_real_person_held_out_once_keeps_each_video_once(compose_config, tmp_path) -> None:
+    if not (REAL_VIDEO / "kth").is_dir():
+        pytest.skip(f"no real KTH clips at {REAL_VIDEO / 'kth'} (../shared/real-video is absent)")
+    out = tmp_path / "run"
+    metrics = run(compose_config(
+        "experiment=kth_person", "debug=tiny", "task.videos.folds=persons",
+        f"task.data_root={REAL_VIDEO / 'kth'}",
+        f"task.videos.sequences={REAL_VIDEO / 'splits/kth/00sequences.txt'}",
+        f"task.cache_dir={tmp_path / 'cache'}", "task.logger=", f"out_dir={out}",
+    ))  # fmt: skip
+    pooled = json.loads((out / "predictions.json").read_text())["videos"]
+    assert len(pooled) == 14 and len({e["video"] for e in pooled}) == 14
+    assert {e["fold"] for e in pooled} == set(range(12))
+    assert read_record(out / "run.json")["data"]["folds"] == 12
+    assert all(len(e["items"]) == 4 and len(e["soft_vote"]) == 3 for e in pooled)
+    assert {e["scenario"] for e in pooled if e["true"] == "boxing"} == {"d1", "d3", "d4"}
+    assert metrics["eval/video_accuracy"] == np.mean([e["predicted"] == e["true"] for e in pooled])

@@ -10,8 +10,10 @@ protocol), the same from each video's training part and its test part (:class:`C
 from __future__ import annotations
 
 import hashlib
+import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -25,6 +27,18 @@ from edr.data.video import read_video
 from edr.store.atomic import atomic_path
 
 PAPER_SCALES = (1.0, 0.875, 0.75, 0.66)
+# What a control does to the frames' order (None: nothing; the records' ``data/frame_order``
+# words are FRAME_ORDER's): shuffled within each clip once it is cut (the frames stay near one
+# another, so the motion statistics of neighbouring frames survive), shuffled within the whole
+# video before clips are cut (within each sub-sequence where the video has them), or one frame
+# of the clip repeated (appearance alone: no motion at all).
+FrameControl = Literal["shuffled_in_clip", "shuffled_in_video", "one_frame"]
+FRAME_ORDER = {
+    None: "in order",
+    "shuffled_in_clip": "shuffled within each clip",
+    "shuffled_in_video": "shuffled within the video",
+    "one_frame": "one frame repeated",
+}
 
 
 class ArrayCache:
@@ -190,8 +204,12 @@ class ClipDataset(Dataset):
     within one of them (drawn in proportion to the clips each holds) and a test stack at the
     start of each that holds a clip, one item each; a video none of whose sub-sequences holds a
     clip is used whole.
-    ``shuffle_frames``: each clip's frames in a random order (a new one per training draw, a
-    fixed one per test item), so that only what single frames show can tell classes apart.
+    ``control`` (:data:`FrameControl`): ``shuffled_in_clip``, each clip's frames in a random
+    order (a new one per training draw, a fixed one per test item; neighbouring frames stay
+    neighbours in time, so motion statistics survive); ``shuffled_in_video``, each video's
+    frames in one fixed random order (within each stretch clips come from) before any clip is
+    cut; ``one_frame``, one frame of each clip repeated over all of its frames (a random one per
+    training draw, a fixed one per test item): appearance alone, no motion.
     """
 
     def __init__(
@@ -204,12 +222,13 @@ class ClipDataset(Dataset):
         train: bool,
         scales: Sequence[float] = PAPER_SCALES,
         negate: Sequence[int] = (),
-        shuffle_frames: bool = False,
+        control: FrameControl | None = None,
     ) -> None:
         self.videos, self.source = videos, source
         self.frames, self.crop, self.train = frames, crop, train
         self.scales, self.negate = tuple(scales), tuple(negate)
-        self.shuffle_frames = shuffle_frames
+        self.control = control
+        self._orders: dict[int, np.ndarray] = {}  # shuffled_in_video: each video's frame order
         self.items = self._items()  # (video index, first frame of a test stack or None)
 
     def _windows(self, video: Video, length: int) -> list[range]:
@@ -254,18 +273,38 @@ class ClipDataset(Dataset):
             part = self._training_window(video, len(array))
         else:
             part = range(len(array))
-        frames = torch.from_numpy(np.array(array[part.start : part.stop]))
+        if self.control == "shuffled_in_video":
+            frames = torch.from_numpy(np.array(array[self._video_order(i, len(array))[part]]))
+        else:
+            frames = torch.from_numpy(np.array(array[part.start : part.stop]))
         if self.train:
             clip = random_clip(frames, self.frames, self.crop, self.scales, self.negate)
-            return self._shuffled(clip, 0, None), video.label
+            return self._in_clip(clip, 0, None), video.label
         # (10, frames, C, crop, crop)
         crops = ten_crops(frames, self.frames, self.crop, self.negate)
-        return self._shuffled(crops, 1, torch.Generator().manual_seed(index)), video.label
+        return self._in_clip(crops, 1, torch.Generator().manual_seed(index)), video.label
 
-    def _shuffled(
+    def _video_order(self, i: int, length: int) -> np.ndarray:
+        """Video ``i``'s frames (``length`` of them) in one random order, fixed by its file name:
+        frames move only within the stretch they lie in (a sub-sequence), so a clip still shows
+        the action, from moments far apart."""
+        if i not in self._orders:
+            video = self.videos.videos[i]
+            rng = np.random.default_rng(zlib.crc32(video.path.name.encode()))
+            order = np.arange(length)
+            for part in self._windows(video, length):
+                order[part.start : part.stop] = rng.permutation(order[part.start : part.stop])
+            self._orders[i] = order
+        return self._orders[i]
+
+    def _in_clip(
         self, clip: torch.Tensor, dim: int, generator: torch.Generator | None
     ) -> torch.Tensor:
-        """``clip`` with its frames (along ``dim``) in a random order, if asked for."""
-        if not self.shuffle_frames:
-            return clip
-        return clip.index_select(dim, torch.randperm(clip.shape[dim], generator=generator))
+        """``clip`` with its frames (along ``dim``) in a random order, or one of them repeated,
+        as the control asks (no draw from the generator without one)."""
+        n = clip.shape[dim]
+        if self.control == "shuffled_in_clip":
+            return clip.index_select(dim, torch.randperm(n, generator=generator))
+        if self.control == "one_frame":
+            return clip.index_select(dim, torch.randint(n, (1,), generator=generator).expand(n))
+        return clip

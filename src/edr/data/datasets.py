@@ -280,7 +280,7 @@ def kth(
     train_fraction: OpenFraction = 0.75,
     seed: int = 0,
     actions: KthActions | None = None,
-    folds: Annotated[int, Range(2)] = 2,
+    folds: Annotated[int, Range(2)] | Literal["persons"] = 2,
     fold: NonNegativeInt = 0,
     sequences: str | Path | None = None,
 ) -> VideoSet:
@@ -288,7 +288,8 @@ def kth(
     ``"person"``: the standard split by person (Schuldt et al. 2004), ``"person_folds"``: the
     persons dealt into ``folds`` folds (:func:`person_folds`), fold ``fold``'s persons testing
     and the others training, so that over the folds every video is tested once by a network
-    that never saw its person; ``"time"``: every video, split in time (:class:`TimeSplit`;
+    that never saw its person (``folds="persons"``: a fold per person, leave one person out);
+    ``"time"``: every video, split in time (:class:`TimeSplit`;
     ``train_fraction`` of each video's frames trains). ``actions``: the classes (default all
     six, in KTH's order). ``sequences``: KTH's ``00sequences.txt``, whose sub-sequences then
     bound where clips are taken (the frames between them show no action)."""
@@ -319,7 +320,7 @@ def kth(
                     f"{path}: not a KTH video file name ({KTH_LAYOUT}): rename, convert or "
                     "remove it"
                 )
-            name = path.name.removesuffix("_uncomp.avi")
+            name = video_name(path)
             if segments and name not in segments:
                 raise DataLayoutError(f"{sequences} has no line for {name} ({path})")
             checked = _checked_video(path, str(root / action))
@@ -328,11 +329,15 @@ def kth(
     if protocol == "time":
         return VideoSet(tuple(videos), actions, index, time_split=TimeSplit(train, train_fraction))
     if protocol == "person_folds":
-        if fold >= folds:
-            raise ConfigError(f"task.videos.fold={fold}: the folds are 0 to {folds - 1}")
-        dealt = person_folds(videos, folds)
+        if folds == "persons":  # leave one person out: a fold per person, in sorted order
+            dealt = {p: k for k, p in enumerate(sorted({v.group for v in videos}))}
+        else:
+            dealt = person_folds(videos, folds)
+        count = len(dealt) if folds == "persons" else folds
+        if fold >= count:
+            raise ConfigError(f"task.videos.fold={fold}: the folds are 0 to {count - 1}")
         chosen = [v for v in videos if (dealt[v.group] == fold) != train]
-        return VideoSet(tuple(chosen), actions, index, person_fold=(fold, folds))
+        return VideoSet(tuple(chosen), actions, index, person_fold=(fold, count))
     if protocol == "person":
         persons = {f"{p:02d}" for p in (KTH_TRAIN_PERSONS if train else KTH_TEST_PERSONS)}
         chosen = [v for v in videos if v.group in persons]
@@ -356,6 +361,18 @@ def kth(
             "video: change task.videos.train_fraction or protocol, or add videos"
         )
     return VideoSet(tuple(chosen), actions, index)
+
+
+def video_name(path: Path) -> str:
+    """A video's name as its data set's lists give it: ``person01_boxing_d1`` (KTH, without
+    ``_uncomp.avi``), ``v_Biking_g01_c01`` (UCF-101)."""
+    return path.name.removesuffix("_uncomp.avi").removesuffix(path.suffix)
+
+
+def kth_person_scenario(path: Path) -> tuple[str | None, str | None]:
+    """(person, scenario) of a KTH file name: ``("01", "d1")``; (None, None) for any other."""
+    match = KTH_NAME.search(path.name)
+    return (match.group(1), f"d{match.group(3)}") if match else (None, None)
 
 
 def read_kth_sequences(path: Path) -> dict[str, tuple[tuple[int, int], ...]]:

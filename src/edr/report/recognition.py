@@ -12,6 +12,7 @@ from edr.report.published import cite, lookup, paper_accuracy, paper_name
 from edr.report.render import Table, mean_std, uncommitted
 from edr.report.runs import cells, finished, placeable, unfinished
 from edr.report.speed import BENCH_ROWS, bench_fps, ratio_lines
+from edr.report.video_statistics import by_person_block
 
 ACCURACY = "metrics.eval/accuracy"
 ABLATION_KEYS = ("half_lives", "beta", "nu_on", "nu_off", "threshold", "return_form", "combine")
@@ -24,6 +25,14 @@ LEARNED = {"tau_0": "half_lives", "beta_0": "beta", "nu_on_0": "nu_on", "nu_off_
 LEARNED_COLUMNS = {"tau_0": "Half-life (frames)", "beta_0": "beta", "nu_on_0": "nu_on",
                    "nu_off_0": "nu_off"}  # fmt: skip
 DIVERGED = "metrics.train/diverged_step"
+# A record's ``data/frame_order`` under a control -> the words a row's representation gets
+# ("shuffled": the within-clip control's word in records before 2026-12-07).
+FRAME_QUALIFIERS = {
+    "shuffled": "frames shuffled within each clip, motion statistics survive",
+    "shuffled within each clip": "frames shuffled within each clip, motion statistics survive",
+    "shuffled within the video": "frames shuffled within the video",
+    "one frame repeated": "one frame repeated, no motion",
+}
 
 
 def without_ablations(runs: pd.DataFrame) -> pd.DataFrame:
@@ -51,16 +60,16 @@ def labelled(done: pd.DataFrame) -> pd.DataFrame:
     """``done`` with what a row of Table 2 or 4 is labelled by: ``data.label`` (the data's words,
     "real clips (8 videos), split in time"; older records: their source) and ``input`` (the
     representation, qualified "raw input" where it reached the backbone unstandardised, as in
-    every record before ``task.normalize_input`` became the default, and "frames shuffled"
-    where each clip's frames were)."""
+    every record before ``task.normalize_input`` became the default, and by the control its
+    frames had, :data:`FRAME_QUALIFIERS`)."""
     if done.empty:
         return done.assign(**{"data.label": None, "input": None})
     missing = pd.Series(None, index=done.index, dtype=object)
     raw = ~standardised(done)
-    shuffled = done.get("data.frame_order", missing).eq("shuffled")
+    control = done.get("data.frame_order", missing).map(FRAME_QUALIFIERS)
     qualifiers = pd.Series(
-        [", ".join(q for q, on in (("raw input", r), ("frames shuffled", s)) if on)
-         for r, s in zip(raw, shuffled, strict=True)],
+        [", ".join(q for q, on in (("raw input", r), (c, isinstance(c, str))) if on)
+         for r, c in zip(raw, control, strict=True)],
         index=done.index,
     )  # fmt: skip
     representation = done.get("choices.representation", missing).astype(str)
@@ -79,7 +88,13 @@ SPLIT_IN_TIME_NOTE = (
     "(experiment=kth_real, ucf101_real), each video's first part for training and its last part "
     "for testing, a clip's length apart: not the paper's protocol (the published number beside "
     "them is the paper's on its own split); their accuracy is over test clips (several per video). "
-    "'(frames shuffled)': each clip's frames in a random order, what appearance alone gives. "
+    "'frames shuffled within each clip, motion statistics survive' (task.shuffle_frames): each "
+    "clip's frames in a random order once it is cut, so neighbouring frames stay close in time "
+    "and a representation of them still sees motion: not appearance alone. 'one frame "
+    "repeated, no motion' (task.frame_control=one_frame): one frame of each clip over all its "
+    "frames, appearance alone; 'frames shuffled within the video' "
+    "(task.frame_control=shuffled_in_video): each video's frames in one random order before "
+    "clips are cut. "
     "'raw input': the representation reached the backbone as computed "
     "(task.normalize_input=false, as every record before 2026-12-03 ran); without it, each input "
     "channel was standardised first (the default since)."
@@ -91,7 +106,17 @@ PUBLISHED_NOTE = (
     "Table 2: UCF-101 split 1 with LTC), on its data set under its protocol, beside every row of "
     "that setting whatever data the row ran on: a reference, not the same measurement where the "
     "Data column names other data. '—' where the paper reports none (another backbone or "
-    "representation, EDR with other settings, frames shuffled); see paper/published.yaml."
+    "representation, EDR with other settings, a control of the frames); see paper/published.yaml."
+)
+
+
+UCF101_SPLITS_NOTE = (
+    "No row runs UCF-101's official split lists, because the real clips allow no experiment on "
+    "them: of the 24 real UCF-101 clips of 13 classes in ../shared/real-video/ucf101, the lists "
+    "put clips of a class on both sides for 2 classes in split 1 (Biking, Rowing: 3 test clips, "
+    "trained on 7), 2 in split 2 (PlayingViolin, Rowing: 4 test clips, trained on 6) and 3 in "
+    "split 3 (Biking, PlayingViolin, Rowing: 5 test clips, trained on 8); one test clip would "
+    "move accuracy by 20 to 33 points (tests/test_ucf101_lists.py counts them)."
 )
 
 
@@ -122,11 +147,12 @@ def published_accuracy(
 ) -> list[str]:
     """Per row of ``grouped`` (cells of ``done``), the paper's accuracy for its task, backbone
     and representation as a table cell, whatever data the row ran on (:data:`PUBLISHED_NOTE`);
-    '—' where the paper has none, and beside frames shuffled (no setting of the paper's)."""
+    '—' where the paper has none, and beside a control of the frames (no setting of the
+    paper's)."""
     return [
         cite(
             None
-            if run.get("data.frame_order") == "shuffled"
+            if run.get("data.frame_order") in FRAME_QUALIFIERS
             else paper_accuracy(
                 published, run.get("task"), run.get("choices.backbone"), _paper_name(run, published)
             )
@@ -185,12 +211,17 @@ def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         frame,
         done,
         notes=[
-            "Accuracy: test videos, 10 crops, averaged softmax. Cell: the config fingerprint "
-            "without the seed; rows with the same labels and another cell differ in some other "
-            "setting.",
+            "Accuracy: over test items (`eval/accuracy`), each a 10-crop stack with its softmax "
+            "averaged: one item per video on generated data, one per KTH sub-sequence split by "
+            "person (4 a video), several stretches a video split in time; ± is the spread over "
+            "seeds on the same items, not an interval. Rows split by person are counted in "
+            "videos, with intervals and paired tests, below the table. Cell: the config "
+            "fingerprint without the seed; rows with the same labels and another cell differ in "
+            "some other setting.",
             PUBLISHED_NOTE,
             SPLIT_IN_TIME_NOTE,
         ],
+        extra=by_person_block(done),
         unfinished=unfinished(runs, "kth", unplaced),
         paper=pd.DataFrame(
             [
@@ -266,6 +297,7 @@ def table2_ucf101(
             "table2_speed.md for every timed row), beside the paper's for the representation.",
             PUBLISHED_NOTE,
             SPLIT_IN_TIME_NOTE,
+            UCF101_SPLITS_NOTE,
         ],
         unfinished=unfinished(runs, "ucf101", unplaced),
         extra=extra,

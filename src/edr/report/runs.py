@@ -39,6 +39,7 @@ BASE_COLUMNS = ["record", "run_dir", "task", "status", "error", "fingerprint", "
 # The files beside a record that a table or figure reads, and the tasks whose finished runs must
 # have them; each is read only if it lies inside its run folder.
 HISTORY, CONFUSION, PIXEL_RESPONSE = "history.json", "confusion.json", "pixel_response.png"
+PREDICTIONS = "predictions.json"  # per-video test predictions (edr.tasks.predictions)
 REQUIRED_FILES = {"dvs_transfer": (CONFUSION,), "representation_demo": (PIXEL_RESPONSE,)}
 MAPPINGS = ("data", "choices", "metrics", "machine", "config", "semantic_config")
 STRINGS = ("task", "status", "error", "fingerprint", "cell", "scale", "git", "ended_at")
@@ -104,6 +105,16 @@ def _check_files(run_dir: Path, record: dict[str, Any]) -> None:
         isinstance(confusion, dict) and {"matrix", "classes"} <= confusion.keys()
     ):
         raise BadRecord(f"{CONFUSION} has no matrix and classes")
+    predictions = run_json(run_dir, PREDICTIONS)
+    entry = {"video", "person", "scenario", "true", "predicted", "items"}
+    if predictions is not None and not (
+        isinstance(predictions, dict)
+        and isinstance(predictions.get("videos"), list)
+        and all(isinstance(v, dict) and entry <= v.keys() for v in predictions["videos"])
+    ):
+        raise BadRecord(
+            f"{PREDICTIONS} has no list of videos, each with {', '.join(sorted(entry))}"
+        )
 
 
 def check_record(record: Any) -> dict[str, Any]:

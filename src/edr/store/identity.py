@@ -51,7 +51,7 @@ ADDED_DEFAULTS: dict[str, dict[str, Any]] = {
     "edr.rl.settings.LossSettings": {"advantage": "raw"},
     "edr.data.datasets.kth": {"actions": None, "folds": 2, "sequences": None},
     "edr.data.datasets.ucf101": {"lists": None, "subset": False},
-    "edr.tasks.recognition.train_recognition": {"normalize_input": False},
+    "edr.tasks.recognition.train_recognition": {"normalize_input": False, "frame_control": None},
     "edr.representations.EDR": {
         "parameterization": "log",
         "bptt_window": None,

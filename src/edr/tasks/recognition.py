@@ -14,7 +14,7 @@ import json
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Annotated, Any, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -36,7 +36,14 @@ from edr.checks.config import (
     check_memory,
     torch_device,
 )
-from edr.data.clips import PAPER_SCALES, ClipDataset, PrecomputedSource, VideoSource
+from edr.data.clips import (
+    FRAME_ORDER,
+    PAPER_SCALES,
+    ClipDataset,
+    FrameControl,
+    PrecomputedSource,
+    VideoSource,
+)
 from edr.data.datasets import Video, VideoSet, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
@@ -56,6 +63,12 @@ from edr.store.checkpoints import (
 from edr.store.records import RECORD_NAME, read_record
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
+from edr.tasks.predictions import (
+    PREDICTIONS,
+    video_accuracy,
+    video_predictions,
+    write_predictions,
+)
 from edr.tasks.rebuild import instantiate_from_record
 from edr.tasks.scalars import LoggerName, open_logger
 from edr.tasks.seeds import seed_everything
@@ -74,27 +87,32 @@ class Fitted(NamedTuple):
 
 
 class Tested(NamedTuple):
-    predicted: np.ndarray  # (videos,) class indices
-    true: np.ndarray  # (videos,)
+    scores: np.ndarray  # (items, classes): each test item's softmax averaged over its 10 crops
+    true: np.ndarray  # (items,) class indices
+
+    @property
+    def predicted(self) -> np.ndarray:
+        """(items,) each item's predicted class."""
+        return self.scores.argmax(-1)
 
 
 @torch.no_grad()
 def evaluate(
     model: nn.Module, dataset: ClipDataset, device: torch.device, batch_videos: int = 4
 ) -> Tested:
-    """(predicted, true) labels per video: argmax of the softmax averaged over its 10 crops."""
+    """Class scores and true labels per test item, in ``dataset.items``'s order: the softmax
+    averaged over its 10 crops."""
     model.eval()
-    predicted, true = [], []
+    scores, true = [], []
     for crops, labels in tqdm(
         DataLoader(dataset, batch_size=batch_videos), desc="test", unit="batch", leave=False
     ):
         interrupts.raise_if_stopping()
         b, n = crops.shape[:2]
         logits = model(crops.flatten(0, 1).to(device))  # (B*10, classes)
-        scores = logits.softmax(-1).view(b, n, -1).mean(1)
-        predicted.append(scores.argmax(-1).cpu().numpy())
+        scores.append(logits.softmax(-1).view(b, n, -1).mean(1).cpu().numpy())  # (B, classes)
         true.append(labels.numpy())
-    return Tested(np.concatenate(predicted), np.concatenate(true))
+    return Tested(np.concatenate(scores), np.concatenate(true))
 
 
 def load_model(run_dir: str | Path) -> RecognitionModel:
@@ -140,6 +158,7 @@ def fit_recognition(
     gamma: PositiveFloat = 0.1,
     eval_every: PositiveInt = 1,
     shuffle_frames: bool = False,
+    frame_control: Literal["one_frame", "shuffled_in_video"] | None = None,
     normalize_input: bool = True,
     resume: bool = False,
     logger: LoggerName = "csv",
@@ -147,22 +166,27 @@ def fit_recognition(
     num_workers: NonNegativeInt = 0,
 ) -> Fitted:
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
-    model and the metrics, and writes the history, confusion matrix, figures and model.
-    ``shuffle_frames``: every clip's frames in a random order (before an on-the-fly
-    representation; after a precomputed one), a control for what appearance alone can do.
+    model and the metrics, and writes the history, confusion matrix, per-video predictions,
+    figures and model. Controls (:class:`ClipDataset`): ``shuffle_frames``, every clip's frames
+    in a random order once it is cut (before an on-the-fly representation; after a precomputed
+    one): frames shuffled within each clip, motion statistics survive; ``frame_control``:
+    ``one_frame``, one frame of each clip repeated (appearance alone, no motion at all), or
+    ``shuffled_in_video``, each video's frames in one random order before clips are cut; both
+    before an on-the-fly representation only.
     ``normalize_input``: each channel of the backbone's input standardised
     (:func:`edr.models.input_norm`), whatever the representation."""
     _check_sizes(crop, resize, frames, batch_size, 1 if gray else 3, representation)
     _check_backbone_takes(backbone, representation, 1 if gray else 3, frames, crop)
     dev = torch_device(device)
     data = _Data.find(data_root, synthetic, cache_dir, videos)
+    control = _frame_control(shuffle_frames, frame_control, representation, data.test)
     checkpoint = out_dir / CHECKPOINT
     state = load_checkpoint(checkpoint) if resume else None
     if state is not None:  # a checkpoint goes on only on the data it trained on
         check_same_data(state, data.fingerprint, checkpoint)
     frame_source = VideoSource(cache_dir, size=tuple(resize), gray=gray, max_frames=max_frames)
     online, train_set, test_set, clip_frames = _clip_sets(
-        representation, frame_source, cache_dir, data, frames, crop, scales, shuffle_frames
+        representation, frame_source, cache_dir, data, frames, crop, scales, control
     )
 
     # ---- model, optimizer --------------------------------------------------------------------
@@ -192,9 +216,39 @@ def fit_recognition(
         out_dir, model, train_set, test_set, dev, history, data.classes, rebuild, tested
     )
     if diverged:  # what a network of NaNs predicts is no accuracy
-        metrics["eval/accuracy"] = float("nan")
-    data_part = data.metrics(data_root, synthetic, test_set, shuffle_frames)
+        metrics.update(dict.fromkeys(_ACCURACIES, float("nan")))
+    data_part = data.metrics(data_root, synthetic, test_set, control)
     return Fitted(model, {**data_part, **metrics, **diverged})
+
+
+_ACCURACIES = ("eval/accuracy", "eval/item_accuracy", "eval/video_accuracy")
+
+
+def _frame_control(
+    shuffle_frames: bool, frame_control: str | None, representation: Representation,
+    test: VideoSet,
+) -> FrameControl | None:  # fmt: skip
+    """The control the clips get (None: frames in order); one line for a pair that makes no
+    sense: two controls at once, a control of the frames under a representation computed
+    beforehand on them in order (its cache), a whole-video shuffle of videos split in time."""
+    if shuffle_frames and frame_control is not None:
+        raise ConfigError(
+            f"task.shuffle_frames=true with task.frame_control={frame_control}: one control of "
+            "the frames at a time; set task.shuffle_frames=false or task.frame_control=null"
+        )
+    if frame_control is not None and representation.precompute:
+        raise ConfigError(
+            f"task.frame_control={frame_control} with {type(representation).__name__}, computed "
+            "once on each video's frames in order (its cache): the control would reach only its "
+            "output; use an on-the-fly representation (fdr, edr, graydiff, rgbdiff)"
+        )
+    if frame_control == "shuffled_in_video" and test.time_split is not None:
+        raise ConfigError(
+            "task.frame_control=shuffled_in_video with videos split in time: a whole-video "
+            "shuffle would carry test frames into the training part; use task.frame_control="
+            "one_frame or task.shuffle_frames=true, or split the videos by person"
+        )
+    return "shuffled_in_clip" if shuffle_frames else frame_control
 
 
 def _model(
@@ -257,7 +311,7 @@ class _Data(NamedTuple):
 
     def metrics(
         self, data_root: str | None, synthetic: Callable[..., Path], test_set: ClipDataset,
-        shuffle_frames: bool,
+        control: FrameControl | None,
     ) -> dict[str, Any]:  # fmt: skip
         """The record's ``data/`` part: what the videos were and how they were cut."""
         return {
@@ -267,8 +321,9 @@ class _Data(NamedTuple):
             "data/fingerprint": self.fingerprint,
             "data/train_videos": len(self.train),
             "data/test_videos": len(self.test),
-            "data/test_clips": len(test_set),  # test items: one per video, unless split in time
-            "data/frame_order": "shuffled" if shuffle_frames else "in order",
+            # test items: one per video, unless split in time or into sub-sequences
+            "data/test_clips": len(test_set),
+            "data/frame_order": FRAME_ORDER[control],
         }
 
 
@@ -322,9 +377,15 @@ def _finish(
 ) -> dict[str, Any]:  # fmt: skip
     """The final test with 10 crops (``tested``, the last epoch's, when given), the activations'
     sparsity on a few training clips, and the files a run leaves (``model.pt`` with
-    ``rebuild``, history, confusion, figures); the record's test, training and model metrics."""
-    predicted, true = tested if tested is not None else evaluate(model, test_set, dev)
-    scores, confusion = classification_metrics(predicted, true, classes)
+    ``rebuild``, history, confusion, per-video predictions, figures); the record's test,
+    training and model metrics: ``eval/video_accuracy`` (each video voted by its items' averaged
+    class scores, :mod:`edr.tasks.predictions`), ``eval/item_accuracy`` (over test items, each
+    a 10-crop stack) and ``eval/accuracy``, the item accuracy under the name every earlier
+    record and table reads."""
+    tested = tested if tested is not None else evaluate(model, test_set, dev)
+    scores, confusion = classification_metrics(tested.predicted, tested.true, classes)
+    videos = video_predictions(test_set.videos, [i for i, _ in test_set.items], tested.scores)
+    write_predictions(out_dir / PREDICTIONS, classes, videos)
     probe = torch.stack([train_set[i][0] for i in range(min(4, len(train_set)))]).to(dev)
     model.eval()
     sparsity = activation_sparsity(model, probe)
@@ -336,6 +397,8 @@ def _finish(
     save_confusion(np.array(confusion["matrix"]), classes, out_dir / "confusion.png")
     return {
         **scores,
+        "eval/item_accuracy": scores["eval/accuracy"],
+        "eval/video_accuracy": video_accuracy(videos),
         "train/epochs": len(history),
         "train/loss": history[-1]["train/loss"] if history else float("nan"),
         "model/parameters": sum(p.numel() for p in model.parameters()),
@@ -402,7 +465,7 @@ def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
 
 def _clip_sets(
     representation: Representation, frame_source: VideoSource, cache_dir: str, data: _Data,
-    frames: int, crop: int, scales: Sequence[float], shuffle_frames: bool,
+    frames: int, crop: int, scales: Sequence[float], control: FrameControl | None,
 ) -> tuple[Representation | None, ClipDataset, ClipDataset, int]:  # fmt: skip
     """Every video decoded (and, for a precomputed representation, computed once, like the
     paper's flows) into the caches; returns the representation the model computes on the fly
@@ -418,7 +481,7 @@ def _clip_sets(
     else:
         source, online, negate = frame_source, representation, ()
         clip_frames = representation.out_frames(frames)
-    clips = {"frames": frames, "crop": crop, "negate": negate, "shuffle_frames": shuffle_frames}
+    clips = {"frames": frames, "crop": crop, "negate": negate, "control": control}
     train_set = ClipDataset(data.train, source, train=True, scales=scales, **clips)
     test_set = ClipDataset(data.test, source, train=False, **clips)
     return online, train_set, test_set, clip_frames
@@ -526,26 +589,38 @@ def _learned(representation: Representation | None) -> dict[str, float]:
 def train_recognition(**settings: Any) -> dict[str, Any]:
     """``fit_recognition``'s metrics: the entry of the KTH and UCF-101 tasks. Videos split by
     person into folds (``task.videos.protocol=person_folds``) are cross-validated: a network
-    trained per fold, each in ``fold<k>/``, and their test predictions pooled."""
+    trained per fold, each in ``fold<k>/``, and their test predictions pooled
+    (``task.videos.folds=persons``: a fold per person, every person held out once)."""
     videos = settings["videos"]
     keywords = getattr(videos, "keywords", {})
     if keywords.get("protocol") != "person_folds":
         return fit_recognition(**settings).metrics
-    return _cross_validated(keywords.get("folds", 2), settings)
+    return _cross_validated(_fold_count(settings), settings)
+
+
+def _fold_count(settings: dict[str, Any]) -> int:
+    """How many folds a split by person has: ``task.videos.folds``, or with ``persons`` the
+    number of persons in the videos (listed, not decoded)."""
+    folds = settings["videos"].keywords.get("folds", 2)
+    if folds != "persons":
+        return folds
+    root = resolve_root(settings.get("data_root"), settings["synthetic"], settings["cache_dir"])
+    return settings["videos"](root, train=False, fold=0).person_fold[1]
 
 
 def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
     """Every fold of a split by person, trained and tested in ``<out_dir>/fold<k>/`` (a fold
-    that finished keeps its ``fold.json`` and is not trained again when the run resumes); the
-    metrics of their pooled test predictions (accuracy over every test item of every fold: each
-    video tested once), each fold's accuracy, and the other metrics averaged over folds."""
+    that finished keeps its ``fold.json`` and ``predictions.json`` and is not trained again when
+    the run resumes); the metrics of their pooled test predictions (each video tested once:
+    video accuracy over the pooled ``predictions.json``, item accuracy over every test item of
+    every fold), each fold's item accuracy, and the other metrics averaged over folds."""
     out_dir, resume = Path(settings["out_dir"]), bool(settings.get("resume"))
-    fitted, matrix, classes = [], None, None
+    fitted, matrix, classes, videos = [], None, None, []
     for fold in range(folds):
         fold_dir = out_dir / f"fold{fold}"
         fold_dir.mkdir(parents=True, exist_ok=True)
         done = fold_dir / FOLD_METRICS
-        if not done.is_file():
+        if not (done.is_file() and (fold_dir / PREDICTIONS).is_file()):
             log.info("fold %d of %d", fold + 1, folds)
             seed_everything(settings["seed"] + 1000 * fold)  # a fold trains alike, resumed or not
             metrics = fit_recognition(**{
@@ -554,6 +629,8 @@ def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
             }).metrics  # fmt: skip
             write_json_atomic(done, metrics)
         fitted.append(json.loads(done.read_text()))
+        tested = json.loads((fold_dir / PREDICTIONS).read_text())["videos"]
+        videos += [{**entry, "fold": fold} for entry in tested]
         confusion = json.loads((fold_dir / CONFUSION).read_text())
         classes = confusion["classes"]
         matrix = np.array(confusion["matrix"]) + (0 if matrix is None else matrix)
@@ -561,9 +638,13 @@ def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
     write_json_atomic(out_dir / CONFUSION, {"classes": classes, "rows": "true class",
                                             "matrix": matrix.tolist()})  # fmt: skip
     save_confusion(matrix, classes, out_dir / "confusion.png")
+    write_predictions(out_dir / PREDICTIONS, classes, videos)
     numeric = {
         k for k, v in fitted[0].items() if isinstance(v, int | float) and not isinstance(v, bool)
     }
+    pooled = float(matrix.trace() / matrix.sum())
+    if any(np.isnan(f["eval/accuracy"]) for f in fitted):  # a fold diverged: no pooled accuracy
+        pooled = float("nan")
     return {
         **fitted[0],
         **{k: float(np.mean([f[k] for f in fitted])) for k in numeric},
@@ -571,6 +652,8 @@ def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
         "data/test_clips": sum(f["data/test_clips"] for f in fitted),
         "data/folds": folds,
         **{f"eval/fold{k}/accuracy": f["eval/accuracy"] for k, f in enumerate(fitted)},
-        "eval/accuracy": float(matrix.trace() / matrix.sum()),
+        "eval/accuracy": pooled,
+        "eval/item_accuracy": pooled,
+        "eval/video_accuracy": float("nan") if np.isnan(pooled) else video_accuracy(videos),
         **{f"eval/per_class/{c}": float(a) for c, a in zip(classes, per_class, strict=True)},
     }
