@@ -33,7 +33,6 @@ from edr.data.events.checks import (
     regular_file,
 )
 
-
 # The most events read_recording returns at once (436 MiB decoded); iter_recording reads any
 # number, a chunk at a time
 MAX_READ_EVENTS = 1 << 25
@@ -195,9 +194,7 @@ def read_recording(path: str | Path, duration_us: float | None = None) -> np.nda
     return joined(parts) if parts else np.zeros(0, EVENT_DTYPE)
 
 
-def _within_read_limit(
-    path: Path, format_name: str, count: int, duration_us: float | None
-) -> None:
+def _within_read_limit(path: Path, format_name: str, count: int, duration_us: float | None) -> None:
     """Refuse ``count`` events beyond :data:`MAX_READ_EVENTS`, naming the limit and the remedy
     (a dense 20 MB EVT 3.0 file holds 120M events: 1.5 GB decoded, and twice that joined)."""
     if count > MAX_READ_EVENTS:
