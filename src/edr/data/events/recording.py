@@ -32,6 +32,7 @@ from edr.data.events.checks import (
     joined,
     regular_file,
 )
+from edr.data.fingerprint import shared_files
 
 # The most events read_recording returns at once (436 MiB decoded); iter_recording reads any
 # number, a chunk at a time
@@ -309,5 +310,10 @@ def list_recordings(root: str | Path, classes: tuple[str, ...]) -> list[tuple[Pa
         raise ConfigError(
             f"no event recordings ({' '.join(RECORDING_SUFFIXES)}) under {root}/<action>/ "
             f"for {classes}"
+        )
+    for (first, one), (second, other) in shared_files(found):
+        raise ConfigError(
+            f"{first} ({classes[one]}) and {second} ({classes[other]}) are the same recording "
+            "filed under two classes: keep it under one"
         )
     return found
