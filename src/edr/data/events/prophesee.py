@@ -257,7 +257,8 @@ def _evt3_decode(words, state, out):  # pragma: no cover (numba)
                 while bits:
                     bits >>= 1
                     top += 1
-                widest = max(widest, base + top)
+                if top >= 0:  # a vector without events only moves x on
+                    widest = max(widest, base + top)
             base += width
         elif kind == 3:  # VECT_BASE_X
             base, pol = w & 0x7FF, (w >> 11) & 1
