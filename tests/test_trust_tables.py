@@ -228,3 +228,16 @@ def test_a_sweep_counts_a_cell_refused_after_its_attempt_once(tmp_path, monkeypa
     assert caplog.messages[-1] == (
         f"sweep {tmp_path}: 0 skipped, 0 resumed, 1 ran, 1 failed, 0 interrupted, 2 refused"
     )
+
+
+def test_a_runs_attempts_are_read_bounded_and_a_pipe_not_at_all(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(runs_module, "MAX_OTHER_BYTES", 200)
+    record = _write(tmp_path / "a", _record(0))
+    lines = [json.dumps({"unix": i, "outcome": "ran", "fingerprint": "f"}) for i in range(50)]
+    (tmp_path / "a" / "attempts.jsonl").write_text("\n".join(lines) + "\n")
+    found = runs_module.run_attempts(str(record))
+    assert 0 < len(found) < 5 and found[-1]["unix"] == 49
+    os.mkfifo(tmp_path / "b.jsonl")
+    (tmp_path / "a" / "attempts.jsonl").unlink()
+    (tmp_path / "a" / "attempts.jsonl").symlink_to(tmp_path / "b.jsonl")
+    assert runs_module.run_attempts(str(record)) == []

@@ -395,12 +395,19 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
 
 def run_attempts(record: str) -> list[dict[str, Any]]:
     """The lines of a run's ``attempts.jsonl`` (beside its record): each attempt's outcome and
-    the fingerprint it ran under; none where it has no such file or a line does not read."""
+    the fingerprint it ran under; none where it has no such file or a line does not read. Of
+    a file past :data:`MAX_OTHER_BYTES`, its last attempts only (it is appended to)."""
     path = Path(record).parent / "attempts.jsonl"
+    if not path.is_file():  # none, or a named pipe, whose read would block
+        return []
     try:
-        lines = path.read_text().splitlines()
+        with path.open("rb") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(size - MAX_OTHER_BYTES, 0))
+            text = f.read().decode(errors="replace")
     except OSError:
         return []
+    lines = text.splitlines()[1 if size > MAX_OTHER_BYTES else 0 :]  # the first may be cut
     found = []
     for line in lines:
         with contextlib.suppress(json.JSONDecodeError):
