@@ -241,3 +241,14 @@ def test_a_runs_attempts_are_read_bounded_and_a_pipe_not_at_all(tmp_path, monkey
     (tmp_path / "a" / "attempts.jsonl").unlink()
     (tmp_path / "a" / "attempts.jsonl").symlink_to(tmp_path / "b.jsonl")
     assert runs_module.run_attempts(str(record)) == []
+
+
+def test_a_refused_cell_is_known_by_its_folder_or_counted_alone(monkeypatch) -> None:
+    from omegaconf import OmegaConf
+
+    from edr.run import _folder_of
+
+    monkeypatch.delenv("EDR_UNSET_FOR_TEST", raising=False)
+    assert _folder_of(OmegaConf.create({"out_dir": "sweep/crop=1"})) == Path("sweep/crop=1")
+    assert _folder_of(OmegaConf.create({"out_dir": "${oc.env:EDR_UNSET_FOR_TEST}"})) is None
+    assert _folder_of(OmegaConf.create({})) is None
