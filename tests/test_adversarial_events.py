@@ -134,9 +134,9 @@ DVS_ROOTS = {
 @pytest.mark.parametrize("case", DVS_ROOTS)
 def test_dvs_transfer_checks_event_data_before_pretraining(tmp_path, case) -> None:
     root = tmp_path / "dvs"
-    for action in CLASSES:
+    for k, action in enumerate(CLASSES):  # a recording of its own: a copy in two is refused
         (root / action).mkdir(parents=True)
-        write_aedat2(root / action / "good.aedat", _events([1, 2, 3]))
+        write_aedat2(root / action / "good.aedat", _events([1, 2, 3 + k]))
     bad = DVS_ROOTS[case](root / "walking")
     with pytest.raises(RecordingError, match=str(bad).replace(".", r"\.")):
         dvs_transfer(
@@ -148,10 +148,10 @@ def test_dvs_transfer_checks_event_data_before_pretraining(tmp_path, case) -> No
 def test_a_folder_of_only_aedat4_recordings_is_read(tmp_path) -> None:
     pytest.importorskip("faery")
     root = tmp_path / "dvs"
-    for action in CLASSES:
+    for k, action in enumerate(CLASSES):
         (root / action).mkdir(parents=True)
         for i in range(2):
-            write_recording(root / action / f"u{i}.aedat4", _events([1, 2, 3]), (128, 128))
+            write_recording(root / action / f"u{i}.aedat4", _events([1, 2, 3 + k]), (128, 128))
     with pytest.raises(AssertionError, match="pre-training ran"):  # reading got that far
         dvs_transfer(
             out_dir=tmp_path / "run", seed=0, pretrain=_pretrain_that_must_not_run(tmp_path),
@@ -249,9 +249,10 @@ def test_a_corrupt_aedat4_file_is_one_line(tmp_path, case) -> None:
 @pytest.mark.parametrize("task", ["event_camera", "dvs_transfer"])
 def test_edr_run_refuses_a_bad_recording_in_one_line_before_work(cli, tmp_path, task) -> None:
     recordings = tmp_path / "dvs"
-    for action in ("boxing", "handclapping", "handwaving", "jogging", "running", "walking"):
+    for k, action in enumerate(("boxing", "handclapping", "handwaving", "jogging", "running",
+                                "walking")):  # fmt: skip
         (recordings / action).mkdir(parents=True)
-        write_aedat2(recordings / action / "good.aedat", _events([1, 2, 3]))
+        write_aedat2(recordings / action / "good.aedat", _events([1, 2, 3 + k]))
     bad = _truncated(write_aedat2(recordings / "walking" / "bad.aedat", _events([1, 2, 3])))
     setting = f"task.events={bad}" if task == "event_camera" else f"task.dvs_root={recordings}"
     run_dir = tmp_path / "run"

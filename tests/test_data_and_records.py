@@ -109,6 +109,7 @@ def test_a_record_names_no_folder_of_its_machine_under_the_results_root(
     text = (run_dir / "run.json").read_text().replace("<paths.results>", str(results))
     (old / "run.json").write_text(text)
     rendered = []
+    (tmp_path / "bench").mkdir()  # no bench records (a --bench named must be there)
     for runs in (results / "runs", old.parent):
         out = tmp_path / f"paper_{runs.name}"
         tables.main(["--runs", str(runs), "--out", str(out), "--bench", str(tmp_path / "bench")])

@@ -286,7 +286,7 @@ def hydra_app(cfg: DictConfig) -> None:
             raise JobFailed(str(error)) from None
         if not _in_sweep():
             raise SystemExit(2) from None
-        refused_cells.append(str(error))
+        refused_cells.append(_folder_of(cfg))
     except OSError as error:
         if not (isinstance(error, WriteStopped) or error.errno in DISK_ERRORS or _in_sweep()):
             raise
@@ -297,6 +297,15 @@ def hydra_app(cfg: DictConfig) -> None:
         if not _in_sweep():
             raise
         log.error("failed: %s: %s", type(error).__name__, " ".join(str(error).split()))
+
+
+def _folder_of(cfg: DictConfig) -> Path | None:
+    """The run folder ``cfg`` names; None where its ``out_dir`` does not resolve."""
+    try:
+        folder = OmegaConf.select(cfg, "out_dir")
+    except Exception:  # an interpolation that fails: the refusal said it
+        return None
+    return Path(folder) if isinstance(folder, str) and folder.strip() else None
 
 
 def _say_where_it_resumes(out_dir: Path, checkpoint: dict[str, Any] | None) -> None:

@@ -11,7 +11,9 @@ says where its numbers come from (data, scale, machine, git, records); published
 (``paper/published.yaml``) stand beside ours, never in their place. Tables without records are
 skipped, and said to be; every record that cannot be read or placed in a row is listed under the
 tables, with the reason. Refused in one line, exit 2, before anything is written: a scope with
-no records, ``--runs`` without ``--out``, a published-numbers file of the wrong shape.
+no records, ``--runs`` without ``--out``, a ``--bench`` folder or ``--published`` file named but
+not there, a published-numbers file of the wrong shape; the defaults, where absent, are one line
+each (the tables are rendered without them).
 """
 
 from __future__ import annotations
@@ -198,12 +200,18 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     try:
+        absent = _absent_inputs(
+            {"--bench": (args.bench, BENCH_DEFAULT, "folder of edr-bench records"),
+             "--published": (args.published, PUBLISHED, "file of published numbers")}
+        )  # fmt: skip
         runs, out_dir, published = _scope(
             args.runs, args.out, args.published, args.bench, args.bench != BENCH_DEFAULT
         )
     except (Refused, BadPublished) as error:
         print(f"edr-tables: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+    for line in absent:
+        print(f"edr-tables: {line}")
     skipped: list[str] = []
     try:
         written = render_runs(runs, args.bench, out_dir, published, skipped)
@@ -215,11 +223,26 @@ def main(argv: list[str] | None = None) -> None:
         print(line)
     for name, paths in written.items():
         print(f"{name:30s} " + (", ".join(map(str, paths)) if paths else "no records: skipped"))
-    for row in runs[runs["status"] == "unreadable"].itertuples():
+    for row in runs[runs["status"].isin(["unreadable", "not counted"])].itertuples():
         skipped.append(f"{row.record}: {row.error}")
     if skipped:
-        print(f"not read ({len(skipped)}; the records are listed under the tables too):")
+        print(f"not read or not counted ({len(skipped)}; the records are listed under the tables "
+              "too):")  # fmt: skip
         print("\n".join(f"  {line}" for line in skipped))
+
+
+def _absent_inputs(inputs: dict[str, tuple[Path, Path, str]]) -> list[str]:
+    """One line for each input (option -> (its path, its default, what it is)) that is absent
+    by default: the tables render without it. One named but absent is :class:`Refused`."""
+    lines = []
+    for option, (path, default, what) in inputs.items():
+        kind = what.split()[0]  # folder or file
+        if path.is_dir() if kind == "folder" else path.exists():
+            continue
+        if path != default or path.exists():
+            raise Refused(f"{option} {path}: no such {kind}; name an existing {what}")
+        lines.append(f"{option} {path} (the default) is absent: rendered without its {what}")
+    return lines
 
 
 def _scope(

@@ -43,7 +43,7 @@ from edr.checks.config import (
     check_memory,
     mismatch,
 )
-from edr.data.fingerprint import files_fingerprint, relative_name
+from edr.data.fingerprint import files_fingerprint, relative_name, shared_files
 from edr.data.synthetic import KTH_ACTIONS
 from edr.data.video import UnreadableVideo, check_video_file
 from edr.store.identity import digest
@@ -57,7 +57,8 @@ KTH_LAYOUT = (
 )
 log = logging.getLogger(__name__)
 UCF_GROUP = re.compile(r"_g(\d+)_c\d+")
-KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.avi$")
+VIDEO_SUFFIX = ".avi"  # either data set's, in any case (.AVI where a tool wrote upper case)
+KTH_NAME = re.compile(r"person(\d\d)_([a-z]+)_d(\d)_uncomp\.(?i:avi)$")  # .AVI too
 KTH_SEQUENCE = re.compile(r"^(person\d\d_[a-z]+_d\d)\s+frames\s+(\d.*)$")
 # Schuldt et al. (2004): training + validation persons, and the test persons.
 KTH_TRAIN_PERSONS = (11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 23, 24, 25, 1, 4)
@@ -137,6 +138,16 @@ def _visible(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if not p.name.startswith("."))
 
 
+def one_class_each(videos: Sequence[Video], classes: Sequence[str]) -> None:
+    """Refuse, naming both files, a video filed under two classes (:func:`shared_files`: the
+    same file, a link to it, or a copy): it would be both actions at once."""
+    for first, second in shared_files([(v.path, v.label) for v in videos]):
+        raise DataLayoutError(
+            f"{first[0]} ({classes[first[1]]}) and {second[0]} ({classes[second[1]]}) are the "
+            "same video filed under two classes: keep it under one"
+        )
+
+
 def _class_index(class_file: Path) -> dict[str, int]:
     """classInd.txt's ``1 ApplyEyeMakeup`` lines -> {name: 0-based label}: every index from 1
     to the number of classes once, every name once (else one line naming file and line)."""
@@ -154,8 +165,10 @@ def _class_index(class_file: Path) -> dict[str, int]:
                 f"{class_file}:{n}: index {index} is given already on line {lines[index]}; "
                 "each class needs its own index"
             )
-        if name in classes:
-            raise DataLayoutError(f"{class_file}:{n}: class {name} is listed twice")
+        same = next((c for c in classes if c.lower() == name.lower()), None)
+        if same is not None:  # one folder, on a file system that ignores case
+            again = "twice" if same == name else f"twice (as {same} before)"
+            raise DataLayoutError(f"{class_file}:{n}: class {name} is listed {again}")
         classes[name], lines[index] = index - 1, n
     if sorted(lines) != list(range(1, len(lines) + 1)):
         gaps = sorted(set(range(1, max(lines, default=0) + 1)) - set(lines))
@@ -243,18 +256,33 @@ def ucf101(
         log.info("%s: %d of its %d clips are under %s (subset=true: the others are left out)",
                  list_file.name, len(videos), len(videos) + absent, root)  # fmt: skip
     names = tuple(sorted(classes, key=classes.get))
+    empty = [name for name in names if all(v.label != classes[name] for v in videos)]
+    if empty and not subset:  # a part of UCF-101 (subset=true) holds some of its classes
+        raise DataLayoutError(
+            f"{list_file} lists no video of the classes {', '.join(empty[:5])}"
+            f"{' ...' if len(empty) > 5 else ''} that {class_file.name} names: every class needs "
+            f"videos; list them, or remove those classes from {class_file.name}"
+        )
+    one_class_each(videos, names)
     return VideoSet(tuple(videos), names, (class_file, list_file))
 
 
 def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
-    """Every ``<root>/<ClassName>/*.avi``, classes in sorted order, split in time."""
-    folders = sorted(d for d in root.iterdir() if d.is_dir() and any(d.glob("*.avi")))
+    """Every ``<root>/<ClassName>/*.avi``, classes in sorted order, split in time: every folder
+    under ``root`` (but hidden ones and ``ucfTrainTestlist/``) is a class, and needs videos."""
+    folders = [d for d in _visible(root) if d.is_dir() and d.name != "ucfTrainTestlist"]
     if not folders:
         raise _missing(root, "class folders with .avi files", "<root>/<ClassName>/*.avi")
     videos = []
     for label, folder in enumerate(folders):
-        for path in _visible(folder):
-            if path.suffix != ".avi":
+        found = _visible(folder)
+        if not found:
+            raise DataLayoutError(
+                f"{folder}: an empty class folder: every class needs videos; add its videos or "
+                "remove the folder"
+            )
+        for path in found:
+            if path.suffix.lower() != VIDEO_SUFFIX:
                 raise DataLayoutError(
                     f"{path}: not a video of the layout <root>/<ClassName>/*.avi: rename, "
                     "convert or remove it"
@@ -265,7 +293,9 @@ def _ucf101_in_time(root: Path, time_split: TimeSplit) -> VideoSet:
                     _checked_video(path, str(folder)), label, group.group(1) if group else path.stem
                 )
             )
-    return VideoSet(tuple(videos), tuple(d.name for d in folders), time_split=time_split)
+    names = tuple(d.name for d in folders)
+    one_class_each(videos, names)
+    return VideoSet(tuple(videos), names, time_split=time_split)
 
 
 # KTH classes to train: each once (one listed twice would be two classes of the same videos)
@@ -309,7 +339,7 @@ def kth(
     videos = []
     for label, action in enumerate(actions):
         found = _visible(root / action)
-        if not any(p.suffix == ".avi" for p in found):
+        if not any(p.suffix.lower() == VIDEO_SUFFIX for p in found):
             raise DataLayoutError(
                 f"{root / action} holds no .avi video: every action needs videos ({KTH_LAYOUT})"
             )
@@ -325,6 +355,7 @@ def kth(
                 raise DataLayoutError(f"{sequences} has no line for {name} ({path})")
             checked = _checked_video(path, str(root / action))
             videos.append(Video(checked, label, match.group(1), segments.get(name, ())))
+    one_class_each(videos, actions)
     index = (Path(sequences),) if sequences else ()
     if protocol == "time":
         return VideoSet(tuple(videos), actions, index, time_split=TimeSplit(train, train_fraction))
@@ -366,7 +397,8 @@ def kth(
 def video_name(path: Path) -> str:
     """A video's name as its data set's lists give it: ``person01_boxing_d1`` (KTH, without
     ``_uncomp.avi``), ``v_Biking_g01_c01`` (UCF-101)."""
-    return path.name.removesuffix("_uncomp.avi").removesuffix(path.suffix)
+    stem = path.name.removesuffix(path.suffix)  # .avi or .AVI
+    return stem.removesuffix("_uncomp")
 
 
 def kth_person_scenario(path: Path) -> tuple[str | None, str | None]:

@@ -13,6 +13,7 @@ from typing import Any
 from edr.store.identity import digest
 
 HASH_UP_TO_BYTES = 64 * 2**20  # sets up to this size are hashed byte by byte
+SAMPLE_BYTES = 1 << 16  # a file's first and last bytes, compared where two share a size
 
 
 def relative_name(path: Path, root: Path) -> str:
@@ -33,3 +34,35 @@ def files_fingerprint(files: Sequence[Path], root: Path, extra: Any = None) -> s
         return f"content:{digest([h.hexdigest(), extra])}"
     listing = [(n, s.st_size, s.st_mtime_ns) for n, s in zip(names, stats, strict=True)]
     return f"stat:{digest([listing, extra])}"
+
+
+def _sample(path: Path, size: int) -> bytes:
+    """A file's first and last :data:`SAMPLE_BYTES` (all of it, where it is smaller)."""
+    with path.open("rb") as f:
+        head = f.read(SAMPLE_BYTES)
+        f.seek(max(size - SAMPLE_BYTES, len(head)))
+        return hashlib.sha256(head + f.read()).digest()
+
+
+def shared_files(
+    labelled: Sequence[tuple[Path, int]],
+) -> list[tuple[tuple[Path, int], tuple[Path, int]]]:
+    """Pairs of ``labelled`` files (path, label) of two labels that are one file (a hard or
+    symbolic link) or copies of it (the same size, first and last bytes: only files of one
+    size are read, 128 KiB each)."""
+    by_size: dict[int, list[tuple[Path, int, tuple[int, int]]]] = {}
+    for path, label in labelled:
+        stat = path.stat()
+        by_size.setdefault(stat.st_size, []).append((path, label, (stat.st_dev, stat.st_ino)))
+    pairs = []
+    for size, group in by_size.items():
+        if len({label for _, label, _ in group}) < 2:
+            continue
+        seen: dict[Any, tuple[Path, int]] = {}
+        for path, label, node in group:
+            for key in (node, _sample(path, size)):
+                first = seen.setdefault(key, (path, label))
+                if first[1] != label:
+                    pairs.append((first, (path, label)))
+                    break
+    return pairs

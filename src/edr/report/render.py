@@ -144,7 +144,11 @@ def to_markdown(table: Table, published: dict | None = None) -> str:
     lines += paper_block(table, published or {})
     lines += ["", "Records:", ""] + [f"- `{r}`" for r in table.runs.get("record", [])]
     if table.unfinished is not None and not table.unfinished.empty:
-        lines += ["", "Not averaged (not finished, not placed in a row, or not readable):", ""]
+        lines += [
+            "",
+            "Not averaged (not finished, not placed in a row, not readable, or not countable):",
+            "",
+        ]
         lines += [
             f"- `{r.record}`: {r.status}" + (f" ({r.error})" if isinstance(r.error, str) else "")
             for r in table.unfinished.itertuples()

@@ -8,14 +8,17 @@ and ``metrics.<name>``.
 A table cell aggregates only finished runs that share everything but the seed: the same
 ``cell`` fingerprint, data fingerprint, data source and scale. Failed, running and pre-store
 records are listed, never averaged; so is every record that cannot be read (not JSON, not a
-record, a wrong-typed field, a file it names that is broken or lies outside its run folder) and
-every run folder reached through a symbolic link, each with the reason.
+record, a wrong-typed field, larger than a record is, a file it names that is broken or lies
+outside its run folder), every run folder reached through a symbolic link, and every finished
+record that cannot count (:func:`uncountable`: no fingerprint or cell, a metric that is no
+finite measurement), each with the reason: a run is counted whole or listed, never half-counted.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -42,6 +45,13 @@ HISTORY, CONFUSION, PIXEL_RESPONSE = "history.json", "confusion.json", "pixel_re
 PREDICTIONS = "predictions.json"  # per-video test predictions (edr.tasks.predictions)
 REQUIRED_FILES = {"dvs_transfer": (CONFUSION,), "representation_demo": (PIXEL_RESPONSE,)}
 MAPPINGS = ("data", "choices", "metrics", "machine", "config", "semantic_config")
+# The most bytes a file the tables read may hold (a record, else a history or confusion): memory
+# stays bounded by what they read (a 24 MB record of 10^6 metrics took 4 GB and a minute)
+MAX_BYTES = {RECORD_NAME: 4 << 20}
+MAX_OTHER_BYTES = 64 << 20  # a 5M-step Atari run's history is 2 MB
+MAX_FIELDS = 10_000  # the values a record's mappings may hold (a run writes a few hundred)
+# Where a finished run records that its training diverged: its accuracy is NaN by design
+DIVERGED_AT = "train/diverged_step"
 STRINGS = ("task", "status", "error", "fingerprint", "cell", "scale", "git", "ended_at")
 
 
@@ -68,8 +78,15 @@ def run_file(run_dir: Path, name: str) -> Path | None:
 
 def read_json(path: Path) -> Any:
     """The JSON in ``path``; :class:`BadRecord` naming the file for bytes that are not UTF-8,
-    text that is not JSON, or JSON nested past Python's recursion limit."""
+    text that is not JSON, JSON nested past Python's recursion limit, or more bytes than a
+    file of its name holds (:data:`MAX_BYTES`: refused before it is read)."""
+    limit = MAX_BYTES.get(path.name, MAX_OTHER_BYTES)
     try:
+        if (size := path.stat().st_size) > limit:
+            raise BadRecord(
+                f"{path.name} is {size / 2**20:.1f} MiB, more than the {limit >> 20} MiB such a "
+                "file holds: not read"
+            )
         return json.loads(regular_file_bytes(path).decode())
     except UnicodeDecodeError:
         raise BadRecord(f"{path.name} is not UTF-8 text") from None
@@ -139,7 +156,27 @@ def check_record(record: Any) -> dict[str, Any]:
         raise BadRecord(f"seed {seed!r} is not an integer")
     if record.get("status") == "finished" and "metrics" not in record:
         raise BadRecord("finished, but has no metrics")
+    fields = sum(len(flatten(record.get(key, {}))) for key in MAPPINGS)
+    if fields > MAX_FIELDS:
+        raise BadRecord(f"holds {fields:,} values, more than the {MAX_FIELDS:,} a record holds")
     return record
+
+
+def uncountable(record: dict[str, Any]) -> str | None:
+    """Why a finished ``record`` cannot count in a table, or None: no fingerprint or cell (no
+    table could tell it from another run), an infinite metric, or a NaN ``eval/`` metric of a
+    run that records no divergence (``train/diverged_step``); averaging it would count it as a
+    run and leave it out of the mean."""
+    for key in ("fingerprint", "cell"):
+        if not record.get(key):
+            return f"finished, but has no {key}: no table can tell it from another run"
+    metrics = record.get("metrics", {})
+    for name, value in metrics.items():
+        if not isinstance(value, float) or math.isfinite(value):
+            continue
+        if math.isinf(value) or (name.startswith("eval/") and DIVERGED_AT not in metrics):
+            return f"metrics {name} is {value}, not a measurement"
+    return None
 
 
 Scalar = int | float | bool | str | None
@@ -251,7 +288,10 @@ def _read(path: Path) -> dict[str, Any]:
         if record.get("status") == "finished" and not isinstance(record.get("data"), dict):
             raise BadRecord("finished, but without its data part: no table can say what it ran on")
         _check_files(path.parent, record)
-        return _row(path, record)
+        row = _row(path, record)
+        if row["status"] == "finished" and (reason := uncountable(record)):
+            row.update(status="not counted", error=reason)
+        return row
     except BadRecord as error:
         return {"record": _shown(path), "status": "unreadable", "error": str(error)}
     except RecursionError:
@@ -363,12 +403,19 @@ def cells(runs: pd.DataFrame, metrics: Sequence[str], labels: Sequence[str]) -> 
 
 def run_attempts(record: str) -> list[dict[str, Any]]:
     """The lines of a run's ``attempts.jsonl`` (beside its record): each attempt's outcome and
-    the fingerprint it ran under; none where it has no such file or a line does not read."""
+    the fingerprint it ran under; none where it has no such file or a line does not read. Of
+    a file past :data:`MAX_OTHER_BYTES`, its last attempts only (it is appended to)."""
     path = Path(record).parent / "attempts.jsonl"
+    if not path.is_file():  # none, or a named pipe, whose read would block
+        return []
     try:
-        lines = path.read_text().splitlines()
+        with path.open("rb") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(size - MAX_OTHER_BYTES, 0))
+            text = f.read().decode(errors="replace")
     except OSError:
         return []
+    lines = text.splitlines()[1 if size > MAX_OTHER_BYTES else 0 :]  # the first may be cut
     found = []
     for line in lines:
         with contextlib.suppress(json.JSONDecodeError):

@@ -264,17 +264,23 @@ def _attempt(line: str) -> dict[str, Any] | None:
     return attempt if isinstance(attempt, dict) and {"unix", "outcome"} <= attempt.keys() else None
 
 
-def outcomes_since(sweep_dir: Path, since: float, sweep: str | None = None) -> Counter[str]:
+def last_outcomes(sweep_dir: Path, since: float, sweep: str | None = None) -> dict[Path, str]:
     """The last outcome of every job folder under ``sweep_dir`` attempted after ``since`` (by
-    the sweep ``sweep`` only, when given: another sweep sharing the folder counts its own)."""
-    counts: Counter[str] = Counter()
+    the sweep ``sweep`` only, when given: another sweep sharing the folder counts its own),
+    by folder."""
+    found: dict[Path, str] = {}
     for file in sorted(Path(sweep_dir).glob(f"*/{ATTEMPTS}")):
         attempts = [a for line in file.read_text(errors="replace").splitlines()
                     if (a := _attempt(line)) is not None]  # fmt: skip
         mine = [a for a in attempts if sweep is None or a.get("sweep") == sweep]
         if mine and mine[-1]["unix"] >= since:
-            counts[mine[-1]["outcome"]] += 1
-    return counts
+            found[file.parent.resolve()] = mine[-1]["outcome"]
+    return found
+
+
+def outcomes_since(sweep_dir: Path, since: float, sweep: str | None = None) -> Counter[str]:
+    """How many job folders under ``sweep_dir`` ended each way (:func:`last_outcomes`)."""
+    return Counter(last_outcomes(sweep_dir, since, sweep).values())
 
 
 def _run_each_folder_once(config: DictConfig) -> None:
@@ -333,8 +339,11 @@ class RunFolder(Callback):
             raise SystemExit(2) from None
 
 
-# The cells of this process's sweep refused before they had a folder to log an attempt in.
-refused_cells: list[str] = []
+# The folders of this process's sweep's cells refused in one line (a ConfigError): those that
+# logged no attempt (refused before their run began) count as refused; the others count once,
+# as their attempt says (a task that refused its data after the record was written: failed).
+# (None: a cell whose folder could not be resolved, counted alone)
+refused_cells: list[Path | None] = []
 
 
 class SweepSummary(Callback):
@@ -369,8 +378,13 @@ class SweepSummary(Callback):
         """Log the summary line (once); whether a cell failed or was refused."""
         SweepSummary.under_way = None
         os.environ.pop(SWEEP_ID, None)  # later runs of this process belong to no sweep
-        counts = outcomes_since(self.sweep_dir, self.started, getattr(self, "sweep_id", None))
-        counts["refused"] = len(refused_cells)
+        outcomes = last_outcomes(self.sweep_dir, self.started, getattr(self, "sweep_id", None))
+        unplaced = [folder for folder in refused_cells if folder is None]
+        for folder in refused_cells:  # every job once: by its folder
+            if folder is not None:
+                outcomes.setdefault(folder.resolve(), "refused")
+        counts = Counter(outcomes.values())
+        counts["refused"] += len(unplaced)
         order = ("skipped", "resumed", "ran", "failed", "interrupted", "refused")
         shown = [k for k in order if k != "refused" or counts[k]]
         log.info("sweep %s: %s", self.sweep_dir, ", ".join(f"{counts[k]} {k}" for k in shown))

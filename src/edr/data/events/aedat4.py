@@ -22,7 +22,13 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from edr.data.events.checks import CHUNK_EVENTS, EVENT_DTYPE, RecordingError, unfit
+from edr.data.events.checks import (
+    CHUNK_EVENTS,
+    EVENT_DTYPE,
+    MAX_HEADER_BYTES,
+    RecordingError,
+    unfit,
+)
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 # One event as DV stores it: struct Event { int64 t; int16 x; int16 y; bool on; }, 8-aligned
@@ -64,6 +70,11 @@ class Header:
             if len(head) < len(MAGIC) + 4:
                 raise self.fail("truncated inside its header")
             size = _u32(head, len(MAGIC))
+            if size > MAX_HEADER_BYTES:  # read whole, it could be 4 GiB
+                raise self.fail(
+                    f"its header states {size:,} bytes, more than {MAX_HEADER_BYTES >> 20} MiB "
+                    "(DV writes a few KiB): a corrupt file"
+                )
             data = f.read(size)
         self.data_start = len(MAGIC) + 4 + size
         if len(data) < size:

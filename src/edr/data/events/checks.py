@@ -33,6 +33,8 @@ CHUNK_EVENTS = 1 << 20  # events a reader decodes at a time: memory stays bounde
 # The largest sensor side read or written (DAT's 14-bit x and y; real sensors are <= 1280): a
 # header stating more is refused, and a recording that states no sensor spans at most this.
 MAX_SIDE = 16384
+HEADER_LINE_BYTES = 1 << 16  # a longer text header "line" is data: reading one stays bounded
+MAX_HEADER_BYTES = 1 << 20  # a text header longer than this is no header (cameras: < 4 KiB)
 # The latest time origin (µs, 146,000 years) a header may state: the origin plus any format's
 # clock (32-bit AEDAT 2.0, wrapped 24-bit EVT 3.0) stays inside int64.
 MAX_T0 = 1 << 62
@@ -190,6 +192,21 @@ def events_of(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.
     for name, column in zip("txyp", (t, x, y, p), strict=True):
         events[name] = _fitted(name, np.asarray(column))
     return events
+
+
+def event_array(path: str | Path, format_name: str, events: Any) -> np.ndarray:
+    """``events`` if a writer can take them: a 1-d numpy structured array with fields t, x, y
+    and p (EVENT_DTYPE or wider); one line saying what they are otherwise (a plain array would
+    fail in the writer with an IndexError)."""
+    names = getattr(getattr(events, "dtype", None), "names", None) or ()
+    if isinstance(events, np.ndarray) and events.ndim == 1 and {"t", "x", "y", "p"} <= set(names):
+        return events
+    found = (f"{events.dtype} {layout_of(events)}" if isinstance(events, np.ndarray)
+             else f"a {type(events).__name__}")  # fmt: skip
+    raise RecordingError(
+        path, format_name,
+        f"events must be a 1-d structured array with fields t, x, y, p (EVENT_DTYPE); got {found}",
+    )  # fmt: skip
 
 
 def joined(parts: list[np.ndarray]) -> np.ndarray:

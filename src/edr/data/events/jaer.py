@@ -34,7 +34,10 @@ import numpy as np
 
 from edr.data.events.checks import (
     CHUNK_EVENTS,
+    HEADER_LINE_BYTES,
+    MAX_HEADER_BYTES,
     RecordingError,
+    event_array,
     events_of,
     signed_times,
     stated_t0,
@@ -53,7 +56,6 @@ PACKET_HEADER = np.dtype([("type", "<i2"), ("source", "<i2"), ("size", "<i4"), (
                           ("valid", "<i4")])  # fmt: skip
 POLARITY_EVENT = 1
 POLARITY = np.dtype([("data", "<u4"), ("t", "<i4")])  # AEDAT 3.1's polarity event
-HEADER_LINE_BYTES = 1 << 16  # a longer "line" is data: reading one stays bounded
 
 
 def _is_header_line(line: bytes) -> bool:
@@ -73,6 +75,11 @@ def _header(path: Path, end: bytes | None = None) -> tuple[list[str], int]:
             if not _is_header_line(line):
                 return lines, start
             lines.append(line.decode("latin-1").rstrip("\r\n"))
+            if f.tell() > MAX_HEADER_BYTES:  # 100 MB of '#' lines would be held as text
+                raise RecordingError(
+                    path, "AEDAT", f"its '#' header runs past {MAX_HEADER_BYTES >> 20} MiB (jAER "
+                    "writes a few KiB): not a header; is it an event file?",
+                )  # fmt: skip
             if end is not None and line.lower().startswith(end.lower()):
                 return lines, f.tell()
 
@@ -169,6 +176,7 @@ def write_aedat2(
     first event's, that time in a ``# t0`` line (refused, before anything is written, when
     they span more than a 32-bit timestamp holds)."""
     path = Path(path)
+    events = event_array(path, "AEDAT 2.0", events)
     t0 = time_origin(path, "AEDAT 2.0", events["t"], AEDAT2_SPAN_US)
     chip = aedat2_chip_for(path, sensor)
     height = CHIPS[chip][0]

@@ -30,6 +30,8 @@ from numba import njit
 from edr.data.events.checks import (
     CHUNK_EVENTS,
     EVENT_DTYPE,
+    HEADER_LINE_BYTES,
+    MAX_HEADER_BYTES,
     RecordingError,
     events_of,
     joined,
@@ -58,27 +60,42 @@ def faery_module(path: Path, format_name: str) -> ModuleType:
     return faery
 
 
+def _header_lines(path: Path) -> tuple[list[bytes], int]:
+    """A Prophesee file's '%' header lines (to its ``% end`` line, if it has one) and where its
+    data begins; read a line at a time, each bounded (a 100 MB file starting with '%' and no
+    line end was read whole: 1.3 GB before its refusal)."""
+    lines: list[bytes] = []
+    with path.open("rb") as f:
+        while f.peek(1)[:1] == b"%":
+            line = f.readline(HEADER_LINE_BYTES)
+            if not line.endswith(b"\n") and len(line) == HEADER_LINE_BYTES:
+                raise RecordingError(
+                    path, "Prophesee", f"a '%' header line runs past {HEADER_LINE_BYTES >> 10} "
+                    "KiB without a line end: not a header; is it an event file?",
+                )  # fmt: skip
+            lines.append(line)
+            if f.tell() > MAX_HEADER_BYTES:
+                raise RecordingError(
+                    path, "Prophesee", f"its '%' header runs past {MAX_HEADER_BYTES >> 20} MiB "
+                    "(a camera writes a few hundred bytes): not a header; is it an event file?",
+                )  # fmt: skip
+            if line[1:].strip().lower() == b"end":
+                break
+        return lines, f.tell()
+
+
 def prophesee_header(path: Path) -> dict[str, str]:
     """A Prophesee file's '% key value' header lines as a dict (lower-case keys)."""
     found: dict[str, str] = {}
-    with path.open("rb") as f:
-        for line in iter(f.readline, b""):
-            if not line.startswith(b"%"):
-                break
-            text = line[1:].decode("latin-1").strip()
-            key, _, value = text.partition(" ")
-            found[key.lower()] = value.strip()
-            if key.lower() == "end":
-                break
+    for line in _header_lines(path)[0]:
+        key, _, value = line[1:].decode("latin-1").strip().partition(" ")
+        found[key.lower()] = value.strip()
     return found
 
 
 def data_offset(path: Path) -> int:
     """Where a Prophesee file's data begins: after its '%' header lines."""
-    with path.open("rb") as f:
-        while f.peek(1)[:1] == b"%":
-            f.readline()
-        return f.tell()
+    return _header_lines(path)[1]
 
 
 def prophesee_sensor(path: Path) -> tuple[int, int] | None:
@@ -213,10 +230,12 @@ def _evt3_decode(words, state, out):  # pragma: no cover (numba)
     to the next. The common words (EVT_ADDR_Y, EVT_ADDR_X) and a vector's bits are decoded
     without a branch, twice as fast: each writes the next slot ``out[n]`` and counts it only if
     it is an event (n never passes the events' count, so the spare slot is the furthest
-    written)."""
+    written). Returns the largest x of an event written: a run of vectors carries x past the
+    11 bits (and int16 would wrap 65,636 to 100), which the caller refuses."""
     high, low, wraps, row, base, pol = state[0], state[1], state[2], state[3], state[4], state[5]
     time = wraps + (high << 12) + low
     n = 0
+    widest = 0
     for i in range(len(words)):
         w = np.int64(words[i])
         kind = w >> 12
@@ -232,6 +251,14 @@ def _evt3_decode(words, state, out):  # pragma: no cover (numba)
                 event = out[n]
                 event.t, event.x, event.y, event.p = time, base + b, row, pol
                 n += (w >> b) & 1
+            if base + width > EVT_SIDE:  # rare: only then the highest set bit is found
+                bits = w & (0xFFF if kind == 4 else 0xFF)
+                top = -1
+                while bits:
+                    bits >>= 1
+                    top += 1
+                if top >= 0:  # a vector without events only moves x on
+                    widest = max(widest, base + top)
             base += width
         elif kind == 3:  # VECT_BASE_X
             base, pol = w & 0x7FF, (w >> 11) & 1
@@ -245,6 +272,7 @@ def _evt3_decode(words, state, out):  # pragma: no cover (numba)
             high = new
             time = wraps + (high << 12) + low
     state[0], state[1], state[2], state[3], state[4], state[5] = high, low, wraps, row, base, pol
+    return widest
 
 
 def _evt3_words(path: Path) -> np.ndarray:
@@ -274,7 +302,13 @@ def evt3_chunks(path: Path) -> Iterator[np.ndarray]:
     while at < len(words):
         stop, n = _evt3_window(words, at, CHUNK_EVENTS)
         events = np.empty(n + 1, EVENT_DTYPE)  # and _evt3_decode's spare slot
-        _evt3_decode(words[at:stop], state, events)
+        widest = _evt3_decode(words[at:stop], state, events)
+        if widest >= EVT_SIDE:  # stored in int16, it would have wrapped (65,636 -> 100)
+            raise RecordingError(
+                path, "EVT 3.0",
+                f"x = {widest} outside any EVT 3.0 sensor (x in 0..{EVT_SIDE - 1}): a run of "
+                f"vector words in words {at}..{stop} carries x past its 11 bits (a corrupt file)",
+            )  # fmt: skip
         at = stop
         yield events[:n]
 

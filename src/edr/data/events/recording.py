@@ -9,10 +9,10 @@ here, for every format; what a writer is given is checked here before any format
 
 from __future__ import annotations
 
+import operator
 import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +27,16 @@ from edr.data.events.checks import (
     RecordingError,
     UnfitValue,
     bounded_sensor,
+    event_array,
     events_of,
     joined,
     regular_file,
 )
+from edr.data.fingerprint import shared_files
+
+# The most events read_recording returns at once (436 MiB decoded); iter_recording reads any
+# number, a chunk at a time
+MAX_READ_EVENTS = 1 << 25
 
 
 @dataclass(frozen=True)
@@ -171,27 +177,46 @@ def iter_recording(path: str | Path, duration_us: float | None = None) -> Iterat
 
 def read_recording(path: str | Path, duration_us: float | None = None) -> np.ndarray:
     """Events (N,) EVENT_DTYPE of one recording of any supported format, sorted by time; with
-    ``duration_us``, only its first ``duration_us`` microseconds are decoded."""
-    chunks = (c for c in iter_recording(path, duration_us) if len(c))
-    first, second = next(chunks, None), next(chunks, None)
-    if first is None or second is None:  # one chunk: nothing to join
-        return np.zeros(0, EVENT_DTYPE) if first is None else first
+    ``duration_us``, only its first ``duration_us`` microseconds are decoded. More than
+    :data:`MAX_READ_EVENTS` are refused in one line, as soon as they are counted (before any
+    is decoded, where a format counts them cheaply)."""
+    path = Path(path)
     fmt = detect_format(path)
-    if fmt.count is None or duration_us is not None:
-        return joined([first, second, *chunks])
-    return _filled(
-        _unreadable_is_one_line(Path(path), fmt.name, fmt.count), [first, second], chunks
-    )
+    chunks = (c for c in iter_recording(path, duration_us) if len(c))
+    if fmt.count is not None and duration_us is None:
+        count = _unreadable_is_one_line(path, fmt.name, fmt.count)
+        _within_read_limit(path, fmt.name, count, duration_us)
+        return _filled(count, chunks)
+    parts, held = [], 0
+    for chunk in chunks:
+        held += len(chunk)
+        _within_read_limit(path, fmt.name, held, duration_us)
+        parts.append(chunk)
+    return joined(parts) if parts else np.zeros(0, EVENT_DTYPE)
 
 
-def _filled(count: int, *parts: Iterable[np.ndarray]) -> np.ndarray:
-    """The ``count`` events of ``parts``' chunks in one array, each chunk copied in as it comes:
+def _within_read_limit(path: Path, format_name: str, count: int, duration_us: float | None) -> None:
+    """Refuse ``count`` events beyond :data:`MAX_READ_EVENTS`, naming the limit and the remedy
+    (a dense 20 MB EVT 3.0 file holds 120M events: 1.5 GB decoded, and twice that joined)."""
+    if count > MAX_READ_EVENTS:
+        part = "it holds" if duration_us is None else f"its first {duration_us / 1e6:g} s hold"
+        raise RecordingError(
+            path, format_name,
+            f"{part} more than {MAX_READ_EVENTS:,} events "
+            f"({MAX_READ_EVENTS * EVENT_DTYPE.itemsize >> 20} MiB decoded), the most read at "
+            "once: cut it into shorter recordings (or, in a run, read fewer frames of it: "
+            "task.frames)",
+        )  # fmt: skip
+
+
+def _filled(count: int, chunks: Iterable[np.ndarray]) -> np.ndarray:
+    """The ``count`` events of ``chunks`` in one array, each chunk copied in as it comes:
     memory is the events and a chunk, not the events twice (a list of chunks and their join:
     3.4 GB for 1.5 GB of events from a dense 20 MB EVT 3.0 file)."""
     events = np.empty(count, EVENT_DTYPE)
     into = events.view(np.uint8)  # copied as bytes: numpy copies structured arrays by field
     at = 0
-    for chunk in chain(*parts):
+    for chunk in chunks:
         size = len(chunk) * EVENT_DTYPE.itemsize
         into[at : at + size] = np.ascontiguousarray(chunk).view(np.uint8)
         at += size
@@ -225,7 +250,13 @@ def check_writable(path: str | Path, sensor: tuple[int, int]) -> str:
     if os.path.lexists(path) and not path.is_file():  # a folder: the final rename would fail
         there = "a folder" if path.is_dir() else "something other than a regular file"
         raise RecordingError(path, name, f"cannot be written: {there} is in its place")
-    bounded_sensor(path, name, (int(sensor[0]), int(sensor[1])), FORMATS[name].max_side)
+    try:
+        height, width = (operator.index(side) for side in sensor)
+    except (TypeError, ValueError):  # None, a float, one side or three
+        raise RecordingError(
+            path, name, f"sensor {sensor!r} is not (height, width), two integers"
+        ) from None
+    bounded_sensor(path, name, (height, width), FORMATS[name].max_side)
     if name == "AEDAT 2.0":
         try:
             jaer.aedat2_chip_for(path, sensor)
@@ -236,15 +267,17 @@ def check_writable(path: str | Path, sensor: tuple[int, int]) -> str:
 
 def write_recording(path: str | Path, events: np.ndarray, sensor: tuple[int, int]) -> Path:
     """Events (EVENT_DTYPE) of a ``sensor`` = (height, width) into a file whose suffix picks the
-    format: ``.raw`` EVT 3.0, ``.aedat4`` AEDAT 4, ``.aedat`` AEDAT 2.0, ``.npz``. A sensor
-    beyond the format's side, a value beyond its field (a float time, p 2) or events off the
-    sensor are refused here, before the format's writer runs."""
+    format: ``.raw`` EVT 3.0, ``.aedat4`` AEDAT 4, ``.aedat`` AEDAT 2.0, ``.npz``. What is not a
+    structured array of events, a sensor that is not two integers or beyond the format's side,
+    a value beyond its field (a float time, p 2) or events off the sensor are refused here,
+    before the format's writer runs."""
     path = Path(path)
     name = check_writable(path, sensor)
     fmt = FORMATS[name]
     height, width = int(sensor[0]), int(sensor[1])
+    events = event_array(path, name, events)
     try:  # a float time or an x beyond int16 is refused, never narrowed (wrapped)
-        events = events_of(*(np.asarray(events[k]) for k in ("t", "x", "y", "p")))
+        events = events_of(*(events[k] for k in ("t", "x", "y", "p")))
     except UnfitValue as error:
         raise RecordingError(path, name, str(error)) from None
     events = Checked(path, name, (height, width)).check(np.sort(events, order="t", kind="stable"))
@@ -277,5 +310,10 @@ def list_recordings(root: str | Path, classes: tuple[str, ...]) -> list[tuple[Pa
         raise ConfigError(
             f"no event recordings ({' '.join(RECORDING_SUFFIXES)}) under {root}/<action>/ "
             f"for {classes}"
+        )
+    for (first, one), (second, other) in shared_files(found):
+        raise ConfigError(
+            f"{first} ({classes[one]}) and {second} ({classes[other]}) are the same recording "
+            "filed under two classes: keep it under one"
         )
     return found
