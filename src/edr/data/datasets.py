@@ -330,6 +330,12 @@ def kth(
     if protocol == "person_folds":
         if fold >= folds:
             raise ConfigError(f"task.videos.fold={fold}: the folds are 0 to {folds - 1}")
+        persons = len({v.group for v in videos})
+        if folds > persons:  # a fold without a person would test nothing
+            raise ConfigError(
+                f"task.videos.folds={folds}: expected at most {persons}, the persons whose videos "
+                f"are under {root}: each fold tests persons of its own"
+            )
         dealt = person_folds(videos, folds)
         chosen = [v for v in videos if (dealt[v.group] == fold) != train]
         return VideoSet(tuple(chosen), actions, index, person_fold=(fold, folds))

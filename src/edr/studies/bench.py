@@ -266,6 +266,9 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
 def _parser() -> argparse.ArgumentParser:
     """edr-bench's options: the representations' speed (default), --atari or --events."""
     parser = argparse.ArgumentParser(prog="edr-bench", description=__doc__.split("\n\n")[0])
+    parser.error = lambda message: parser.exit(  # type: ignore[method-assign]
+        2, f"edr-bench: {message} (edr-bench --help lists the flags)\n"
+    )  # one line, as every refusal, not argparse's usage block
     parser.add_argument("--video", type=Path, help="a real video to time on (default: generated)")
     parser.add_argument("--frames", type=int, default=32, help="frames per call (clip length)")
     parser.add_argument("--flow-frames", type=int, default=6, help="frames per call for slow flows")
@@ -401,8 +404,7 @@ def planned_allocations(args: argparse.Namespace) -> list[Allocation]:
             Allocation(f"--atari={args.atari}", "the envs' observation rings", rings),
             Allocation(
                 f"--atari={args.atari}",
-                f"{2 * args.atari} env worker processes (backend "
-                "parallel), at least 50 MiB each",
+                f"{2 * args.atari} env worker processes (backend parallel), at least 50 MiB each",
                 workers,
             ),
         ]
