@@ -258,7 +258,10 @@ def test_more_folds_than_persons_is_refused_before_training(tmp_path) -> None:
 def test_a_non_image_env_is_named_when_it_is_made() -> None:
     from edr.rl.envs import gym_image_env
 
-    with pytest.raises(ConfigError, match=r"env_id=CartPole-v1: expected an image env.*Box\(4,\)"):
+    with pytest.raises(
+        ConfigError,
+        match=r"env_id=CartPole-v1: expected an env of RGB image observations.*Box\(4,\)",
+    ):
         gym_image_env("CartPole-v1")
 
 

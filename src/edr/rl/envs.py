@@ -154,7 +154,7 @@ def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
     ):
         env.close()
         raise ConfigError(
-            f"task.env.env_id={env_id}: expected an image env, RGB frames (H, W, 3) uint8, as "
+            f"task.env.env_id={env_id}: expected an env of RGB image observations (H, W, 3) uint8, as "
             f"task.env.preset=none plays; it observes {_space_text(space)}: give an env with frames, or "
             "task.env.game=<an ALE game> with preset paac"
         )

@@ -370,13 +370,14 @@ def _check_values(args: argparse.Namespace) -> None:
         raise ConfigError(f"--video={args.video}: expected {problem}")
     if args.atari:
         from edr.rl.envs import AtariGame  # ale-py and torchrl load only for this mode
+        from edr.studies.bench_atari import BACKEND_NAMES
 
         if expected := mismatch(args.game, AtariGame):
             raise ConfigError(f"--game={args.game}: expected {expected}")
         backends = args.backends.split(",")
-        if wrong := next((b for b in backends if b not in BACKENDS), None):
+        if wrong := next((b for b in backends if b not in BACKEND_NAMES), None):
             raise ConfigError(
-                f"--backends={args.backends}: expected backends among {', '.join(BACKENDS)}, "
+                f"--backends={args.backends}: expected backends among {', '.join(BACKEND_NAMES)}, "
                 f"comma-separated ({wrong!r} is none)"
             )
     check_allocations(planned_allocations(args))
@@ -384,7 +385,6 @@ def _check_values(args: argparse.Namespace) -> None:
         raise ConfigError(f"--out-dir={args.out_dir}: expected {problem}")
 
 
-BACKENDS = ("envpool", "parallel", "serial")  # what --atari compares (bench_atari.BACKEND_NAMES)
 EVENTS_CHANNELS = 6  # the widest row's events: EDR K=3 soft gray and EDR K=1 soft RGB, 2 x 3
 WORKER_BYTES = 50 * 2**20  # a spawned Python with torch imported holds more than this
 
