@@ -375,10 +375,11 @@ def _check_values(args: argparse.Namespace) -> None:
         if expected := mismatch(args.game, AtariGame):
             raise ConfigError(f"--game={args.game}: expected {expected}")
         backends = args.backends.split(",")
-        if wrong := next((b for b in backends if b not in BACKEND_NAMES), None):
+        wrong = [b for b in backends if b not in BACKEND_NAMES]
+        if wrong:
             raise ConfigError(
                 f"--backends={args.backends}: expected backends among {', '.join(BACKEND_NAMES)}, "
-                f"comma-separated ({wrong!r} is none)"
+                f"comma-separated ({wrong[0]!r} is none)"
             )
     check_allocations(planned_allocations(args))
     if problem := writable_folder_problem(args.out_dir):
