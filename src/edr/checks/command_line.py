@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import re
 import shutil
 import subprocess
 from collections.abc import Callable, Sequence
@@ -23,7 +24,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 from hydra.utils import get_object
-from omegaconf import DictConfig
+from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from edr.checks.config import ConfigError
 
@@ -147,6 +149,24 @@ def check_command_line(
     ):
         _check_slurm_answers()
     chosen = [o for o in ours if o.key_or_group in groups]
+    _refuse_deleted_group(chosen, Path(conf_dir))
+    cfg = None
+    try:
+        cfg = _composed(ours, chosen, groups, Path(conf_dir))
+        HydraConfig.instance().set_config(cfg)  # ${hydra:...} resolves as in the run
+        _resolve_all(cfg)
+        check(cfg)
+    except HydraException as error:  # a composition that fails (a deleted group's interpolation)
+        raise ConfigError(" ".join(str(error).split())) from None
+    except OmegaConfBaseException as error:  # a value that does not resolve (an unset variable)
+        raise ConfigError(_unresolved(error, cfg)) from None
+
+
+def _composed(
+    ours: list[Override], chosen: list[Override], groups: list[str], conf_dir: Path
+) -> DictConfig:
+    """The config the command composes (a sweep: its first job's), once every override names a
+    real option or key."""
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3"):
         for override in chosen:  # an option that does not exist
             options = sorted(
@@ -171,12 +191,61 @@ def check_command_line(
                 continue  # ++ on a key that exists: a plain change
             if missing := _missing(base, key, override.is_add() or override.is_force_add()):
                 raise ConfigError(_refusal(override, missing, task, given="task" in keys_given))
-        try:
-            cfg = compose("config", overrides=_first_values(ours), return_hydra_config=True)
-        except HydraException as error:
-            raise ConfigError(" ".join(str(error).split())) from None
-    HydraConfig.instance().set_config(cfg)  # ${hydra:...} resolves as in the run
-    check(cfg)
+        return compose("config", overrides=_first_values(ours), return_hydra_config=True)
+
+
+def _refuse_deleted_group(chosen: Sequence[Override], conf_dir: Path) -> None:
+    """One line for ``~task`` (or another group the config picks an option of): every run needs
+    one; only a group that is off by default (``~ablation``, ``~game``) may be deleted."""
+    primary = OmegaConf.to_container(OmegaConf.load(conf_dir / "config.yaml"), resolve=False)
+    picked = {}
+    for entry in primary.get("defaults", []):
+        if isinstance(entry, dict):
+            picked.update(entry)
+    for override in chosen:
+        group = override.key_or_group
+        if override.is_delete() and picked.get(group) is not None:
+            options = sorted(f.stem for f in (conf_dir / group).glob("*.yaml"))
+            raise ConfigError(
+                f"{override.input_line}: a run needs its {group} (the default is "
+                f"{group}={picked[group]}): pick one with {group}=... ({', '.join(options)})"
+            )
+
+
+def _resolve_all(cfg: DictConfig) -> None:
+    """Every value but Hydra's own resolved, as the run's record will: an interpolation that
+    fails (an unset environment variable, a path that loops) fails here, before any work."""
+    for key in cfg:
+        if key == "hydra":
+            continue
+        node = cfg[key]  # a plain value resolves as it is read
+        if isinstance(node, DictConfig | ListConfig):
+            OmegaConf.to_container(node, resolve=True)
+
+
+ENV_NAME = re.compile(r"(?:oc\.env|edr\.env):([A-Za-z_][A-Za-z0-9_]*)")
+
+
+def _unresolved(error: OmegaConfBaseException, cfg: DictConfig | None) -> str:
+    """``threads=${oc.env:UNSET}: cannot be resolved (Environment variable 'UNSET' not found):
+    set UNSET, or give a default (${oc.env:UNSET,<value>})``"""
+    key = str(getattr(error, "full_key", "") or "")
+    reason = str(getattr(error, "msg", error)).splitlines()[0]
+    reason = re.sub(r"^\w+ raised while resolving interpolation: ", "", reason)
+    raw: object = None
+    if cfg is not None and key:
+        raw = OmegaConf.to_container(cfg, resolve=False)
+        for part in key.split("."):
+            raw = raw.get(part) if isinstance(raw, dict) else None
+    names = sorted(set(ENV_NAME.findall(f"{raw} {reason}")))
+    remedy = (
+        f"set the environment variable {', '.join(names)} to a value that works (or unset it, "
+        "where the config gives a default)"
+        if names
+        else "give it a value, or an interpolation of a key that exists"
+    )
+    shown = f"{key}={raw}" if raw is not None else key or "the config"
+    return f"{shown}: cannot be resolved ({reason}): {remedy}"
 
 
 def _refusal(

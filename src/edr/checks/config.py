@@ -157,6 +157,38 @@ def _existing_file_problem(path: Any) -> str | None:
     )
 
 
+def video_problem(path: Any, min_frames: int = 2) -> str | None:
+    """What makes ``path`` no video to read, found before decoding it: no file there (a link
+    in a loop, a folder), 0 bytes, a file OpenCV cannot open (text, a cut container), or fewer
+    than ``min_frames`` frames by its container's count. A video cut part way past its header is
+    found as it decodes (``read_video``)."""
+    from edr.data.video import UnreadableVideo, check_video_file, frame_count  # loads OpenCV
+
+    if problem := path_problem(path):
+        return problem
+    try:
+        check_video_file(path)
+    except UnreadableVideo as error:
+        return f"a video file ({error})"
+    count = frame_count(path)
+    if count == 0:  # not said: OpenCV could not open the container
+        import cv2
+
+        capture = cv2.VideoCapture(str(path))
+        opened = capture.isOpened()
+        capture.release()
+        if not opened:
+            return (
+                "a video OpenCV can decode (it cannot open this file: corrupt, cut or not a video)"
+            )
+    if 0 < count < min_frames:
+        return f"a video of at least {min_frames} frames (its container holds {count})"
+    return None
+
+
+VideoFile = Annotated[str, Check(video_problem)]  # a video of two frames or more, checked unread
+
+
 # A folder a run writes into, with room for a subfolder and a file in it (a cache's entries).
 OutputDir = Annotated[str, Check(lambda path: writable_folder_problem(path, below=2))]
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set
@@ -220,6 +252,7 @@ Threads = Annotated[int, Range(1), Check(_threads_problem)]
 
 # Where Linux states a container's memory limit (cgroup v2, then v1).
 CGROUP_LIMITS = ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes")
+CGROUP_USAGE = ("/sys/fs/cgroup/memory.current", "/sys/fs/cgroup/memory/memory.usage_in_bytes")
 
 
 def memory_bytes() -> int:
@@ -238,16 +271,56 @@ def memory_bytes() -> int:
     return total
 
 
+def available_memory_bytes() -> int:
+    """The memory this process can take now, in bytes: what Linux says is available
+    (``MemAvailable``: free memory and caches it can drop), within what its container's limit
+    leaves; the machine's memory where neither is said."""
+    available = memory_bytes()
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                available = min(available, int(line.split()[1]) * 1024)
+    except (OSError, ValueError, IndexError):
+        pass
+    for limit, used in zip(CGROUP_LIMITS, CGROUP_USAGE, strict=True):
+        try:
+            text, usage = Path(limit).read_text().strip(), Path(used).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit() and usage.isdigit():
+            available = min(available, max(int(text) - int(usage), 0))
+    return available
+
+
+@dataclass(frozen=True)
+class Allocation:
+    """An array a run or a benchmark holds: the values that size it, what it is, its bytes."""
+
+    settings: str  # as the command line gives them: "task.frames=8, task.height=120"
+    what: str
+    nbytes: float
+
+
+def check_allocations(parts: Sequence[Allocation]) -> None:
+    """:class:`ConfigError` when the arrays ``parts``, held at once, take more than the memory
+    available now: refused before any work, not killed by the OS (or a machine swapping) part
+    way. The line names the settings of the largest. Callers pass lower bounds, so nothing that
+    fits is refused."""
+    total, available = sum(p.nbytes for p in parts), available_memory_bytes()
+    if not parts or total <= available:
+        return
+    largest = max(parts, key=lambda p: p.nbytes)
+    beside = f" ({total / 2**30:,.1f} GiB with everything else it holds)" if len(parts) > 1 else ""
+    raise ConfigError(
+        f"{largest.settings}: {largest.what} would take {largest.nbytes / 2**30:,.1f} GiB"
+        f"{beside}, more than the {available / 2**30:,.1f} GiB of memory available "
+        f"(of this machine's {memory_bytes() / 2**30:,.1f} GiB): use smaller values"
+    )
+
+
 def check_memory(settings: str, what: str, nbytes: float) -> None:
-    """:class:`ConfigError` when ``what``, one array a run must hold and whose size ``settings``
-    set, is larger than this machine's memory: refused before any work, not killed by the OS
-    (or a machine swapping) part way. Callers pass a lower bound, so nothing that fits is refused."""
-    total = memory_bytes()
-    if nbytes > total:
-        raise ConfigError(
-            f"{settings}: {what} would take {nbytes / 2**30:,.1f} GiB, more than this machine's "
-            f"{total / 2**30:,.1f} GiB of memory: use smaller values"
-        )
+    """:func:`check_allocations` of one array, ``what``, whose size ``settings`` set."""
+    check_allocations([Allocation(settings, what, nbytes)])
 
 
 def _non_empty_problem(values: Any) -> str | None:
@@ -409,6 +482,21 @@ def check_node(node: DictConfig, where: str) -> None:
             for inner, node_value in value.items():
                 if isinstance(node_value, DictConfig) and "_target_" in node_value:
                     check_node(node_value, f"{name}.{inner}")
+    check_together(target, node, where)
+
+
+def check_together(target: Any, node: Mapping[str, Any], where: str) -> None:
+    """What no single value shows, where ``target`` can say: its ``settings_problem(values)``
+    (a static method) is given the node's values over the target's defaults and returns
+    ``key=value: expected ...`` or None; one line naming ``where``, before anything is built."""
+    settings_problem = getattr(target, "settings_problem", None)
+    if settings_problem is None:
+        return
+    defaults = {k: p.default for k, p in inspect.signature(target).parameters.items()
+                if p.default is not inspect.Parameter.empty}  # fmt: skip
+    given = {str(k): _plain(v) for k, v in node.items() if not str(k).startswith("_")}
+    if problem := settings_problem({**defaults, **given}):
+        raise ConfigError(f"{where}.{problem}")
 
 
 def _parameters(target: Any) -> list[str] | None:

@@ -360,6 +360,12 @@ def kth(
     if protocol == "time":
         return VideoSet(tuple(videos), actions, index, time_split=TimeSplit(train, train_fraction))
     if protocol == "person_folds":
+        persons = len({v.group for v in videos})
+        if folds != "persons" and folds > persons:  # a fold without a person would test nothing
+            raise ConfigError(
+                f"task.videos.folds={folds}: expected at most {persons}, the persons whose videos "
+                f"are under {root}: each fold tests persons of its own (or folds=persons)"
+            )
         if folds == "persons":  # leave one person out: a fold per person, in sorted order
             dealt = {p: k for k, p in enumerate(sorted({v.group for v in videos}))}
         else:

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
-from typing import Literal, NamedTuple
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -92,6 +92,83 @@ def _overflow_problem(
     return None
 
 
+def _alpha(tau: float) -> float:
+    return -math.expm1(-math.log(2) / tau)  # 1 - 2 ** (-1 / tau), exact for tiny and huge tau
+
+
+def _events_possible(taus: Sequence[float], betas: Sequence[float], nu_on: Sequence[float],
+                     nu_off: Sequence[float], eps: float, summed: bool,
+                     dtype: torch.dtype) -> bool:  # fmt: skip
+    """Whether any input makes an event: the largest returns, a dark pixel turning full scale
+    (ON) or the reverse (OFF), cross a threshold; each return at least the dtype's resolution."""
+    resolution = torch.finfo(dtype).eps
+    ups, downs = [], []
+    for tau, beta in zip(taus, betas, strict=True):
+        keep = 1 - _alpha(tau)  # of the EMA's last value
+        ups.append(beta * math.log1p(keep * FULL_SCALE / (eps + (1 - keep) * FULL_SCALE)))
+        downs.append(beta * math.log1p(keep * FULL_SCALE / eps))
+    if summed:
+        ups, downs = [sum(ups)], [sum(downs)]
+    off_crossings = [-math.log1p(-n) if n < 1 else math.inf for n in nu_off]
+    return any(u > max(math.log1p(n), resolution) for u, n in zip(ups, nu_on, strict=True)) or any(
+        d > max(c, resolution) for d, c in zip(downs, off_crossings, strict=True)
+    )
+
+
+def _listed(values: Sequence[float]) -> str:
+    return "[" + ", ".join(f"{v:g}" for v in values) + "]"
+
+
+def _scales_problem(taus: list[float], betas: list[float], nu_on: list[float],
+                    nu_off: list[float], eps: float, summed: bool,
+                    dtype: torch.dtype) -> str | None:  # fmt: skip
+    """A half-life whose EMA cannot move in ``dtype``, or a half-life, eps or beta and
+    thresholds under which no input makes an event (EDR all zeros)."""
+    info = torch.finfo(dtype)
+    name = str(dtype).removeprefix("torch.")
+    settings = (betas, nu_on, nu_off, eps, summed, dtype)
+    off = -math.log1p(-min(nu_off)) if min(nu_off) < 1 else 0.0
+    crossing = max(math.log1p(min(nu_on)), off, info.eps)  # the smallest log-return that counts
+    exponent = crossing / (sum(betas) if summed else max(betas))
+    largest = FULL_SCALE / math.expm1(exponent) if exponent < math.log(info.max) else 0.0
+    if eps > FULL_SCALE and eps > largest > info.eps:  # no EMA, however slow, makes an event
+        return (
+            f"eps={eps:g}: expected at most {largest:.4g} with beta={_listed(betas)}, "
+            f"nu_on={_listed(nu_on)}, nu_off={_listed(nu_off)}: past it no return, at most "
+            f"(1 + {FULL_SCALE:g}/eps) ** beta, crosses a threshold, and every event would be 0"
+        )
+    # the longest half-life whose EMA still moves: alpha * 255 at least half a step at 255 + eps
+    step = 2.0 ** math.floor(math.log2(FULL_SCALE + eps)) * info.eps  # a float step there
+    longest = -math.log(2) / math.log1p(-min(step / 2 / FULL_SCALE, 0.5))
+    if max(taus) > longest:
+        return (
+            f"half_lives={_listed(taus)}: expected each at most {longest:.3g} frames: past it "
+            f"alpha * {FULL_SCALE:g} is under half a {name} step at {FULL_SCALE:g} + eps, and the "
+            "EMA never leaves the first frame"
+        )
+    if _events_possible(taus, *settings):
+        return None
+    if _events_possible([longest] * len(taus), *settings):  # a slower EMA would make events
+        low, high = min(taus), longest  # the shortest half-life that does, by bisection
+        for _ in range(100):
+            middle = math.sqrt(low * high)
+            low, high = (
+                (low, middle)
+                if _events_possible([middle] * len(taus), *settings)
+                else (middle, high)
+            )
+        return (
+            f"half_lives={_listed(taus)}: expected each at least {high:.3g} frames with "
+            f"eps={eps:g}, beta={_listed(betas)}: shorter, the EMA follows each frame so closely "
+            "that no return crosses a threshold, and every event would be 0"
+        )
+    return (
+        f"beta={_listed(betas)}: expected a beta, or thresholds (nu_on={_listed(nu_on)}, "
+        f"nu_off={_listed(nu_off)}), that a return can cross with eps={eps:g}: the largest, "
+        f"(1 + {FULL_SCALE:g}/eps) ** beta, stays inside them, and every event would be 0"
+    )
+
+
 class KernelArgs(NamedTuple):
     """An EDR layer's settings as the numba kernels take them (one source for every caller)."""
 
@@ -151,26 +228,15 @@ class EDR(Representation):
     ) -> None:
         super().__init__()
         check_arguments(self, locals())
+        if problem := EDR.settings_problem(locals()):
+            raise ValueError(f"EDR: {problem}")
         half_lives = (
             [float(half_lives)] if isinstance(half_lives, int | float) else list(half_lives)
         )
-        if not half_lives:
-            raise ValueError("EDR: half_lives is empty; give at least one half-life")
         k = len(half_lives)
         k_out = 1 if combine == "sum" else k
-        if combine == "sum" and not (
-            isinstance(nu_on, int | float) and isinstance(nu_off, int | float)
-        ):
-            raise ValueError('combine="sum" thresholds once: nu_on and nu_off must be scalars')
         nu_on_t = _per_timescale(nu_on, k_out, "nu_on")
         nu_off_t = _per_timescale(nu_off, k_out, "nu_off")
-        betas = _per_timescale(beta, k, "beta").tolist()
-        compute = torch.float64 if out_dtype == "float64" else torch.float32
-        overflow = _overflow_problem(
-            float(eps), betas, return_form == "log", combine == "sum", compute
-        )
-        if overflow:
-            raise ValueError(f"EDR: {overflow}")
 
         self.threshold, self.return_form, self.combine, self.color = (
             threshold,
@@ -204,6 +270,32 @@ class EDR(Representation):
                 self.register_parameter(name, nn.Parameter(value))
             else:
                 self.register_buffer(name, value)
+
+    @staticmethod
+    def settings_problem(values: Mapping[str, Any]) -> str | None:
+        """``key=value: expected ...`` for settings no single range shows: half-lives, betas or
+        thresholds of the wrong count, eps or beta past what the arithmetic holds
+        (:func:`_overflow_problem`), a half-life whose EMA cannot move, and settings under which
+        every event is 0 (:func:`_scales_problem`); None where they work. Checked by the
+        constructor, and by ``edr-run`` before any work (``check_together``)."""
+        lives, summed = values["half_lives"], values["combine"] == "sum"
+        taus = [float(lives)] if isinstance(lives, int | float) else [float(t) for t in lives]
+        if not taus:
+            return "half_lives=[]: expected at least one half-life"
+        if summed and not all(isinstance(values[n], int | float) for n in ("nu_on", "nu_off")):
+            return 'nu_on: expected one number for nu_on and nu_off: combine="sum" thresholds once'
+        k_out = 1 if summed else len(taus)
+        counts = {"beta": len(taus), "nu_on": k_out, "nu_off": k_out}
+        given = {n: values[n] if isinstance(values[n], Sequence) else [values[n]] * k for n, k
+                 in counts.items()}  # fmt: skip
+        if wrong := next((n for n, k in counts.items() if len(given[n]) != k), None):
+            return f"{wrong}={list(given[wrong])}: expected one value, or one per timescale ({counts[wrong]})"
+        betas, nu_on, nu_off = ([float(v) for v in given[n]] for n in counts)
+        dtype = torch.float64 if values["out_dtype"] == "float64" else torch.float32
+        eps = float(values["eps"])
+        return _overflow_problem(eps, betas, values["return_form"] == "log", summed, dtype) or (
+            _scales_problem(taus, betas, nu_on, nu_off, eps, summed, dtype)
+        )
 
     # ---- sizes -------------------------------------------------------------------------------
     def state_channels(self, in_channels: int) -> int:
@@ -351,6 +443,11 @@ class EDR(Representation):
             raise ValueError(
                 f"state must be the EDRState a previous step returned, or None; got "
                 f"{type(state).__name__}"
+            )
+        if state is not None and state.ema.device.type == "meta":
+            raise ValueError(
+                "state is on the meta device (a shape, no values): pass the EDRState a previous "
+                "step returned, or None"
             )
         if state is not None and tuple(state.ema.shape) != shape:
             raise ValueError(f"state has shape {tuple(state.ema.shape)}, this frame needs {shape}")

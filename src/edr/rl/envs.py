@@ -50,7 +50,7 @@ from torchrl.envs import (
 )
 
 from edr.checks import interrupts
-from edr.checks.config import Check
+from edr.checks.config import Check, ConfigError
 from edr.representations import EDR
 from edr.rl.transform import ObservationFrame
 
@@ -87,13 +87,44 @@ def rom_id(game: str) -> str:
     return re.sub(r"(?<!^)(?=[A-Z])", "_", game).lower()
 
 
+@functools.cache
+def ale_games() -> tuple[str, ...]:
+    """The games this ale-py registers with gymnasium as ``ALE/<Game>-v5``: those it can play
+    (it ships ROMs of a few more, two-player games such as Combat, Joust and Warlords, which no
+    single-player env plays). Read from gymnasium's registry: nothing is built."""
+    return tuple(
+        sorted(k[4:-3] for k in gym.registry if k.startswith("ALE/") and k.endswith("-v5"))
+    )
+
+
 def _game_problem(game: Any) -> str | None:
-    known = ale_py.roms.get_all_rom_ids()
-    if rom_id(str(game)) in known:
+    games = ale_games()
+    if game in games:
         return None
-    names = ["".join(w.capitalize() for w in r.split("_")) for r in known]
-    near = difflib.get_close_matches(str(game), names, n=3, cutoff=0.5)
-    return f"an ALE game ({', '.join(near) if near else 'see ale_py.roms.get_all_rom_ids()'}?)"
+    same = [g for g in games if g.lower() == str(game).lower().replace("_", "")]
+    if same:
+        return f"an ALE game, spelt as ALE does (names are case-sensitive): {same[0]}"
+    if rom_id(str(game)) in ale_py.roms.get_all_rom_ids():
+        return (
+            f"an ALE game ale-py {ale_py.__version__} plays alone: it ships {game}'s ROM but no "
+            f"single-player env for it (pick another: {', '.join(games[:5])}, ...)"
+        )
+    near = difflib.get_close_matches(str(game), games, n=3, cutoff=0.5)
+    listed = f"{', '.join(near)}?" if near else f"one of {len(games)}: {', '.join(games[:6])}, ..."
+    return f"an ALE game ({listed})"
+
+
+def gym_id_problem(env_id: str) -> str | None:
+    """What is wrong with a gymnasium env id, read from gymnasium's registry (nothing built):
+    None where it is registered, or where a ``module:`` prefix registers it when imported."""
+    if ":" in env_id or env_id in gym.registry:
+        return None
+    near = difflib.get_close_matches(env_id, list(gym.registry), n=3, cutoff=0.6)
+    return (
+        "a gymnasium env id registered here"
+        + (f" (did you mean {', '.join(near)}?)" if near else "")
+        + ", or task.env.env_module=<the module whose import registers it>"
+    )
 
 
 AtariGame = Annotated[str, Check(_game_problem)]  # a game whose ROM ale-py ships
@@ -121,14 +152,26 @@ def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
         and len(space.shape) == 3
         and space.shape[-1] == 3
     ):
-        raise ValueError(
-            f"{env_id}: preset=none needs RGB image observations (H, W, 3) uint8, got {space}"
+        env.close()
+        raise ConfigError(
+            f"task.env.env_id={env_id}: expected an env of RGB image observations (H, W, 3) uint8, as "
+            f"task.env.preset=none plays; it observes {_space_text(space)}: give an env with frames, or "
+            "task.env.game=<an ALE game> with preset paac"
         )
     if not isinstance(env.action_space, gym.spaces.Discrete):
-        raise ValueError(f"{env_id}: PAAC needs discrete actions, got {env.action_space}")
+        env.close()
+        raise ConfigError(
+            f"task.env.env_id={env_id}: expected an env of discrete actions, as PAAC takes; it "
+            f"acts in {_space_text(env.action_space)}"
+        )
     if space.shape[:2] != (SCREEN, SCREEN):
         env = gym.wrappers.ResizeObservation(env, (SCREEN, SCREEN))
     return env
+
+
+def _space_text(space: gym.Space) -> str:
+    """``Box(4,) float32``: a space in a few words (its repr lists every bound)."""
+    return f"{type(space).__name__}{space.shape} {space.dtype}"
 
 
 def _torchrl_gym(
@@ -194,6 +237,11 @@ class EnvPoolAtari(EnvBase):
         )
         self._pool = None  # made by the first reset or set_seed (making it takes ~1 s)
         self._seed = 0
+        if task not in envpool.list_all_envs():
+            raise ConfigError(
+                f"task.env.game={game}: expected a game EnvPool {envpool.__version__} plays "
+                "(task.env.backend=envpool): use task.env.backend=serial or parallel (ale-py)"
+            )
         actions = int(envpool.make_spec(task).action_space.n)
         self._pixels: torch.Tensor | None = None  # (N, H, W, 3) the latest frames; first reset
         n = (num_envs,)

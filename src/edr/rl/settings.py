@@ -6,8 +6,9 @@ with a comment each, and a test checks that the two agree.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 from edr.checks.config import (
     Fraction,
@@ -20,7 +21,7 @@ from edr.checks.config import (
 from edr.models.paac import Core, Init, InputNorm
 from edr.models.precision import PrecisionChoice
 from edr.representations import EDR
-from edr.rl.envs import AtariGame, Backend, Preset
+from edr.rl.envs import AtariGame, Backend, Preset, gym_id_problem
 from edr.rl.loss import Advantage
 from edr.rl.optim import OptimizerName
 
@@ -46,6 +47,16 @@ class EnvSettings:
     frame_stack: PositiveInt = 4  # agent steps the network sees at once
     obs_dtype: Literal["float16", "float32"] = "float32"  # the observation's dtype (bfloat16
     # frames come by themselves where the network computes in bfloat16)
+
+    @staticmethod
+    def settings_problem(values: Mapping[str, Any]) -> str | None:
+        """A user's env id that gymnasium's registry lacks (where no ``env_module`` registers
+        it on import, which the check does not run), said before any env is made."""
+        env_id = values.get("env_id")
+        if not isinstance(env_id, str) or values.get("env_module"):
+            return None
+        problem = gym_id_problem(env_id)
+        return f"env_id={env_id!r}: expected {problem}" if problem else None
 
     @property
     def name(self) -> str:

@@ -18,6 +18,7 @@ records, from which ``edr-tables`` renders ``paper/table2_speed.md`` and
 from __future__ import annotations
 
 import argparse
+import errno
 import io
 import statistics
 import subprocess
@@ -33,7 +34,15 @@ import numba
 import torch
 from tqdm import tqdm
 
-from edr.checks.config import writable_folder_problem
+from edr.checks.config import (
+    Allocation,
+    ConfigError,
+    Threads,
+    check_allocations,
+    mismatch,
+    video_problem,
+    writable_folder_problem,
+)
 from edr.data import read_video, synthetic_scene
 from edr.models.paac import Core
 from edr.models.precision import PRECISION_CHOICES
@@ -257,6 +266,9 @@ def jobs(clip: torch.Tensor, flow_frames: int, atari: torch.Tensor) -> list[Job]
 def _parser() -> argparse.ArgumentParser:
     """edr-bench's options: the representations' speed (default), --atari or --events."""
     parser = argparse.ArgumentParser(prog="edr-bench", description=__doc__.split("\n\n")[0])
+    parser.error = lambda message: parser.exit(  # type: ignore[method-assign]
+        2, f"edr-bench: {message} (edr-bench --help lists the flags)\n"
+    )  # one line, as every refusal, not argparse's usage block
     parser.add_argument("--video", type=Path, help="a real video to time on (default: generated)")
     parser.add_argument("--frames", type=int, default=32, help="frames per call (clip length)")
     parser.add_argument("--flow-frames", type=int, default=6, help="frames per call for slow flows")
@@ -321,30 +333,122 @@ def _parser() -> argparse.ArgumentParser:
 QUICK = {"repeats": 2, "warmup": 1, "frames": 4, "flow_frames": 2, "long_frames": 9,
          "height": 48, "width": 64, "atari_batch": 2}  # fmt: skip
 AT_LEAST = {"repeats": 1, "warmup": 0, "frames": 2, "flow_frames": 2, "long_frames": 2,
-            "height": 16, "width": 16, "atari_batch": 1, "steps": 1, "train_frames": 0}  # fmt: skip
+            "height": 16, "width": 16, "atari_batch": 1, "steps": 1, "train_frames": 0,
+            "atari": 0}  # fmt: skip
 
 
 def _settings(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
-    """The options, --quick's sizes filled in where not given; one line (exit 2) for a count
-    below what can be timed (``--repeats 0``: no call to take a median of) or an ``--out-dir``
-    the record cannot be written into (a file, a read-only disk)."""
+    """The options, --quick's sizes filled in where not given; one line (exit 2) for a value
+    that cannot work, before the minutes of timing: a count below what can be timed
+    (``--repeats 0``: no call to take a median of), more threads than cores, a game or backend
+    that does not exist, a ``--video`` that is no video of two frames, sizes whose arrays
+    together exceed the memory available, an ``--out-dir`` the record cannot be written into."""
     args = parser.parse_args(argv)
     if args.quick:
         for key, value in QUICK.items():
             if getattr(args, key) == parser.get_default(key):  # not set on the command line
                 setattr(args, key, value)
-    for key, low in AT_LEAST.items():
-        if getattr(args, key) < low:
-            parser.exit(2, f"edr-bench: --{key.replace('_', '-')}={getattr(args, key)}: "
-                           f"expected a number >= {low}\n")  # fmt: skip
-    if problem := writable_folder_problem(args.out_dir):  # said before the minutes of timing
-        parser.exit(2, f"edr-bench: --out-dir={args.out_dir}: expected {problem}\n")
+    try:
+        _check_values(args)
+    except ConfigError as error:
+        parser.exit(2, f"edr-bench: {error}\n")
     return args
 
 
+def _flag(key: str, value: Any) -> str:
+    return f"--{key.replace('_', '-')}={value}"
+
+
+def _check_values(args: argparse.Namespace) -> None:
+    """:class:`ConfigError` naming the first flag whose value cannot work."""
+    for key, low in AT_LEAST.items():
+        if getattr(args, key) < low:
+            raise ConfigError(f"{_flag(key, getattr(args, key))}: expected a number >= {low}")
+    if args.threads is not None and (expected := mismatch(args.threads, Threads)):
+        raise ConfigError(f"--threads={args.threads}: expected {expected}")
+    if args.video is not None and (problem := video_problem(args.video)):
+        raise ConfigError(f"--video={args.video}: expected {problem}")
+    if args.atari:
+        from edr.rl.envs import AtariGame  # ale-py and torchrl load only for this mode
+        from edr.studies.bench_atari import BACKEND_NAMES
+
+        if expected := mismatch(args.game, AtariGame):
+            raise ConfigError(f"--game={args.game}: expected {expected}")
+        backends = args.backends.split(",")
+        wrong = [b for b in backends if b not in BACKEND_NAMES]
+        if wrong:
+            raise ConfigError(
+                f"--backends={args.backends}: expected backends among {', '.join(BACKEND_NAMES)}, "
+                f"comma-separated ({wrong[0]!r} is none)"
+            )
+    check_allocations(planned_allocations(args))
+    if problem := writable_folder_problem(args.out_dir):
+        raise ConfigError(f"--out-dir={args.out_dir}: expected {problem}")
+
+
+EVENTS_CHANNELS = 6  # the widest row's events: EDR K=3 soft gray and EDR K=1 soft RGB, 2 x 3
+WORKER_BYTES = 50 * 2**20  # a spawned Python with torch imported holds more than this
+
+
+def planned_allocations(args: argparse.Namespace) -> list[Allocation]:
+    """Lower bounds of the arrays a bench holds at once, each with the flags that size it: the
+    timed clip (uint8, a float32 copy, the widest row's float32 events, the learnable rows'
+    gradient), the long clip (twice while it is cut, its two out= buffers per pass) and the
+    Atari-like batch; with ``--atari``, each backend's observation rings and worker processes."""
+    size = f"--height={args.height}, --width={args.width}"
+    if args.atari:
+        from edr.rl.rollout import observations_held
+
+        rings = 2 * args.atari * observations_held(5, 4) * 5 * 84 * 84 * 4  # FDR + EDR, float32
+        workers = 2 * args.atari * WORKER_BYTES if "parallel" in args.backends.split(",") else 0
+        return [
+            Allocation(f"--atari={args.atari}", "the envs' observation rings", rings),
+            Allocation(
+                f"--atari={args.atari}",
+                f"{2 * args.atari} env worker processes (backend parallel), at least 50 MiB each",
+                workers,
+            ),
+        ]
+    if args.events:
+        return []
+    pixels, long = (
+        args.frames * args.height * args.width,
+        args.long_frames * args.height * args.width,
+    )
+    return [
+        Allocation(f"--frames={args.frames}, {size}", f"the timed clip of {args.frames} frames, "
+                   "its float32 copy, a row's events and the learnable rows' gradient",
+                   pixels * (3 + 3 * 4 + EVENTS_CHANNELS * 4 + 2 * 4)),
+        Allocation(f"--long-frames={args.long_frames}, {size}", f"the long clip of "
+                   f"{args.long_frames} frames, cut from its repeats, and its out= buffers",
+                   long * (2 * 3 + 2 * (2 + 1) * 4)),
+        Allocation(f"--atari-batch={args.atari_batch}, --frames={args.frames}",
+                   "the Atari-like batch", args.atari_batch * args.frames * 84 * 84),
+    ]  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
+    """``edr-bench``: a refused value is one line, exit 2, before any timing; a record that
+    cannot be written (a full disk) one line, exit 1."""
     parser = _parser()
     args = _settings(parser, argv)
+    try:
+        _bench(parser, args)
+    except ConfigError as error:  # a setting only the run finds (a game EnvPool lacks)
+        parser.exit(2, f"edr-bench: {error}\n")
+    except OSError as error:
+        if error.errno not in DISK_ERRORS:
+            raise
+        parser.exit(1, f"edr-bench: cannot write under --out-dir={args.out_dir}: "
+                       f"{error.strerror} ({error.filename or args.out_dir})\n")  # fmt: skip
+
+
+# errors of the disk the record goes to
+DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EIO}
+
+
+def _bench(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The mode the flags chose."""
     repeats = args.repeats
     if args.threads:
         torch.set_num_threads(args.threads)

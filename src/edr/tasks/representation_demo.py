@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt
 import torch
 from tqdm import tqdm
 
-from edr.checks.config import ConfigError, ExistingFile, Range
+from edr.checks.config import ConfigError, Range, VideoFile
 from edr.data.synthetic import FrameSide, video_or_scene
 from edr.representations import Representation
 from edr.representations.base import check_enough_frames
@@ -33,7 +33,7 @@ def representation_demo(
     out_dir: Path,
     seed: int,
     representations: dict[str, Representation],
-    video: ExistingFile | None = None,
+    video: VideoFile | None = None,
     frames: Annotated[int, Range(2)] = 48,  # the demo draws a change: two frames at least
     height: FrameSide = 120,
     width: FrameSide = 160,
@@ -53,8 +53,11 @@ def representation_demo(
     clip, data = video_or_scene(video, frames, height, width, seed, widest)  # (T, 3, H, W)
     source = data["data/video"] if video else f"the generated scene of seed {seed}"
     t_count = clip.shape[0]
-    if t_count < 2:
-        raise ValueError(f"the demo needs at least 2 frames, {source} gave {t_count}")
+    if t_count < 2:  # a container that did not say its count: known once decoded
+        raise ConfigError(
+            f"task.video={video}: expected a video of at least 2 frames, which the demo draws a "
+            f"change between; it decodes {t_count}"
+        )
     gray = clip.float().mean(1)  # (T, H, W)
     if pixel is None:
         flat = int(gray.std(0).argmax())
