@@ -248,7 +248,8 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
         }
     )
     assert atari_runs(runs)["scale"].tolist() == [
-        "full settings, but 10M of the paper's 30M env steps", "full", "tiny",
+        "Table 1's pinned settings (not Appendix C's: see Settings), 10M of the paper's 30M env "
+        "steps", "full", "tiny",
     ]  # fmt: skip
 
 
