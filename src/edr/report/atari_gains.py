@@ -188,28 +188,30 @@ def gains_block(done: pd.DataFrame, published: dict[str, Any]) -> str:
             "|---|---|---|---|---|---|---|",
         ]
         for game in [*paper, *sorted(set(per_game) - set(paper))]:
-            ref = reference.get(game, {})
-            theirs = paper.get(game, {})
-            paper_gains = (
-                " / ".join(
-                    cite(gain(theirs["fdr"][c], theirs["fdr_edr"][c]), "+.0f") for c in COLUMNS
-                )
-                + " %"
-                if {"fdr", "fdr_edr"} <= set(theirs)
-                else "-"
-            )
             cells = (
                 [_pairs_cell(per_game[game][c]) for c in COLUMNS]
                 if game in per_game
                 else [_missing(done, budget, game)] * 3
             )
+            ref = reference.get(game, {})
             lines.append(
                 f"| {game} | {' | '.join(cells)} | {_random_cell(randoms.get(game))} | "
-                f"{cite(ref.get('random'))} / {cite(ref.get('human'))} | {paper_gains} |"
+                f"{cite(ref.get('random'))} / {cite(ref.get('human'))} | "
+                f"{_paper_gains(paper.get(game, {}))} |"
             )
         verdict = worst_case_verdict(per_game, missing, mean["worst"])
         lines += ["", f'At {budget} env steps: the paper\'s "much better worst case": {verdict}.']
     return "\n".join(lines)
+
+
+def _paper_gains(theirs: dict[str, dict[str, float]]) -> str:
+    """The paper's own gains of one game, Avg / Best / Worst; ``-`` where it gives no pair."""
+    if not {"fdr", "fdr_edr"} <= set(theirs):
+        return "-"
+    return (
+        " / ".join(cite(gain(theirs["fdr"][c], theirs["fdr_edr"][c]), "+.0f") for c in COLUMNS)
+        + " %"
+    )
 
 
 def _missing(done: pd.DataFrame, budget: str, game: str) -> str:
