@@ -248,8 +248,7 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
         }
     )
     assert atari_runs(runs)["scale"].tolist() == [
-        "Table 1's pinned settings (not Appendix C's: see Settings), 10M of the paper's 30M env "
-        "steps", "full", "tiny",
+        "pinned settings (not the paper's), 10M of its 30M env steps", "full", "tiny",
     ]  # fmt: skip
 
 

@@ -67,8 +67,7 @@ def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
     paper = done["game"].map(_paper_env_steps)
     cut = (done["scale"] == "full") & (budget < paper)
     done.loc[cut, "scale"] = [
-        f"Table 1's pinned settings (not Appendix C's: see Settings), {steps / 1e6:g}M of the "
-        f"paper's {full / 1e6:g}M env steps"
+        f"pinned settings (not the paper's), {steps / 1e6:g}M of its {full / 1e6:g}M env steps"
         for steps, full in zip(budget[cut], paper[cut], strict=True)
     ]
     return done
