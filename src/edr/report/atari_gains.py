@@ -21,8 +21,9 @@ COLUMNS = {"avg": "metrics.eval/mean", "best": "metrics.eval/max", "worst": "met
 # The folder, beside the sweeps' folders (results/learning/), of random-play records for games
 # whose runs hold none: one JSON per run of `edr-eval RUN --random-play` (its random/ metrics).
 RANDOM_PLAY = "table1_random_play"
-# Records of a run scored again with --random-play (edr-eval writes them beside the run).
-NETWORK_EVAL = "network_eval.json"
+# Records of a run scored again with --random-play (edr-eval writes them beside the run:
+# network_eval.json before 2026-12-07, network_eval_seed<S>_plays<N>.json since).
+NETWORK_EVAL = "network_eval*.json"
 
 
 def gain(fdr: float, fdr_edr: float) -> float | None:
@@ -110,9 +111,11 @@ def random_play(done: pd.DataFrame) -> dict[str, list[float]]:
     such run, that of the records in :data:`RANDOM_PLAY` beside the runs' sweep folders."""
     from_runs: dict[str, list[float]] = {}
     for game, record in zip(done["game"], done["record"], strict=True):
-        scored = run_json(Path(record).parent, NETWORK_EVAL) or {}
-        if "random/mean" in scored:
-            from_runs.setdefault(game, []).append(float(scored["random/mean"]))
+        folder = Path(record).parent
+        for name in sorted(p.name for p in folder.glob(NETWORK_EVAL)):
+            scored = run_json(folder, name) or {}
+            if "random/mean" in scored:
+                from_runs.setdefault(game, []).append(float(scored["random/mean"]))
     stored: dict[str, list[float]] = {}
     for folder in sorted({Path(r).parents[2] / RANDOM_PLAY for r in done["record"]}):
         for game, mean in _random_play_records(sorted(folder.glob("*.json"))):
