@@ -14,6 +14,7 @@ import edr.rl.learner as learner
 import edr.tasks.atari as atari
 from edr.checks.config import ConfigError
 from edr.models.paac import PAACNetwork
+from edr.report.runs import read_history
 from edr.rl.loss import n_step_returns, paac_loss
 from edr.run import run
 from edr.tasks.atari import evaluate_checkpoint, load_network
@@ -229,6 +230,9 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     with pytest.raises(KeyboardInterrupt):
         run(compose_config(*overrides, f"out_dir={tmp_path}"))
     assert torch.load(tmp_path / "checkpoint.pt", weights_only=True)["env_steps"] == 1280
+    alone = tmp_path.with_name(f"{tmp_path.name}_checkpoint")  # the stopped run's checkpoint, kept
+    alone.mkdir()
+    (alone / "checkpoint.pt").write_bytes((tmp_path / "checkpoint.pt").read_bytes())
     evaluated = evaluate_checkpoint(tmp_path, plays=1)  # a stopped run, scored where it stopped
     assert evaluated["train/env_steps"] == 1280 and evaluated["eval/plays"] == 1
     saved = json.loads((tmp_path / "checkpoint_eval_seed0_plays1.json").read_text())
@@ -254,7 +258,8 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
         metrics["eval/plays"] == 2 == len(json.loads((tmp_path / "eval_scores.json").read_text()))
     )
     assert metrics["eval/min"] <= metrics["eval/mean"] <= metrics["eval/max"]
-    history = json.loads((tmp_path / "history.json").read_text())
+    history = read_history(tmp_path)  # stored once, gzip-compressed
+    assert not (tmp_path / "history.json").exists()
     # a row per 10 updates, one for the 4 updates before the interrupt, one at the end; none twice
     rows = [*range(200, 1201, 200), 1280, *range(1480, 1881, 200), 2000]
     assert [row["env_steps"] for row in history] == rows
@@ -267,7 +272,7 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert sum(p.numel() for p in network.parameters()) > 0
     assert metrics["eval/network_mode"] == "eval" and metrics["eval/policy"] == "sample"
 
-    # a finished run is scored from its network.pt, its checkpoint and own evaluation untouched
+    # a finished run is scored from its network.pt, its own evaluation untouched
     own = (tmp_path / "eval_scores.json").read_text()
     assert evaluate_checkpoint(tmp_path, plays=1)["train/env_steps"] == 2000
     assert (tmp_path / "eval_scores.json").read_text() == own
@@ -287,25 +292,26 @@ def test_tiny_pong_run_and_its_resume(compose_config, tmp_path, monkeypatch) -> 
     assert sorted(p.name for p in kept.iterdir()) == [
         "network.pt", "network_eval_seed0_plays2.json", "run.json"
     ]  # fmt: skip
-    # kept with its checkpoint alone: scored from it, nothing of the run's own evaluation written
-    alone = tmp_path.with_name(f"{tmp_path.name}_checkpoint")
-    alone.mkdir()
-    for name in ("run.json", "checkpoint.pt"):
-        (alone / name).write_bytes((tmp_path / name).read_bytes())
-    assert evaluate_checkpoint(alone, plays=1)["train/env_steps"] == 2000
+    # a finished record with a checkpoint alone (Table 1's older runs): scored from it, nothing
+    # of the run's own evaluation written
+    (alone / "run.json").write_bytes((tmp_path / "run.json").read_bytes())
+    assert evaluate_checkpoint(alone, plays=1)["train/env_steps"] == 1280
     assert sorted(p.name for p in alone.iterdir()) == [
         "checkpoint.pt", "checkpoint_eval_seed0_plays1.json", "run.json"
     ]  # fmt: skip
 
-    # a finished run trains on from its last checkpoint to a raised budget, and not to a lower one
-    extended = run(compose_config(*overrides, f"out_dir={tmp_path}", "task.env_steps=2400"))
-    record = json.loads((tmp_path / "run.json").read_text())
-    assert record["extended"] == ["task.env_steps: 2000 -> 2400"] and record["resumed"]
-    assert extended["train/env_steps"] == 2400 and record["metrics"] == extended
-    history = json.loads((tmp_path / "history.json").read_text())
-    assert [row["env_steps"] for row in history] == [*rows, 2200, 2400]
-    with pytest.raises(ConfigError, match=r"task\.env_steps: 2400 -> 2000"):
-        run(compose_config(*overrides, f"out_dir={tmp_path}"))
+    # the finished run kept its network.pt and dropped its checkpoint once its record said so:
+    # a larger budget is refused in one line, as a lower one
+    assert not (tmp_path / "checkpoint.pt").exists()
+    attempts = [
+        json.loads(line) for line in (tmp_path / "attempts.jsonl").read_text().split("\n") if line
+    ]
+    assert [a["outcome"] for a in attempts] == ["interrupted", "resumed"]
+    assert all(a["git"] for a in attempts) and attempts[-1]["git"] == record["git"]  # its commit
+    with pytest.raises(ConfigError, match=r"finished and kept its network\.pt, not the checkpoint"):
+        run(compose_config(*overrides, f"out_dir={tmp_path}", "task.env_steps=2400"))
+    with pytest.raises(ConfigError, match=r"task\.env_steps: 2000 -> 1600"):
+        run(compose_config(*overrides, f"out_dir={tmp_path}", "task.env_steps=1600"))
 
 
 def test_groups_atari_does_not_read_leave_its_fingerprint_alone(compose_config) -> None:

@@ -248,7 +248,7 @@ def test_an_atari_run_cut_short_of_the_papers_budget_says_so_in_its_scale() -> N
         }
     )
     assert atari_runs(runs)["scale"].tolist() == [
-        "full settings, but 10M of the paper's 30M env steps", "full", "tiny",
+        "pinned settings (not the paper's), 10M of its 30M env steps", "full", "tiny",
     ]  # fmt: skip
 
 
@@ -294,7 +294,12 @@ def test_table1_keeps_runs_of_two_budgets_apart(tmp_path) -> None:
     assert "At 3M env steps: Figure 5a's" in text and "At 5M env steps: Figure 5a's" in text
     assert "with FDR): supported: FDR+EDR took 2.00 - 2.00M" in text  # 5M's; 3M's undecided
     assert {"FDR at 3M", "FDR at 5M", "FDR+EDR at 3M", "FDR+EDR at 5M"} <= {r[0] for r in rows}
-    assert "| ours at 3M env steps (the games we ran with both inputs) | +0.0 |" in text
+    assert (
+        "| ours at 3M env steps | 1 of 6 (Breakout, MsPacman, Centipede, Qbert, Seaquest "
+        "missing) | +0.0 |"
+    ) in text
+    # each pair of budgets' shared prefix, read from the histories (here alike up to 3M)
+    assert "Pong FDR seed 0 3M and 5M: 3,000,000; Pong FDR seed 1 3M and 5M: 3,000,000" in text
 
 
 def test_the_steps_to_a_score_rows_run_from_the_smallest_budget_up(tmp_path) -> None:

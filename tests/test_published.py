@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from edr.report.atari import average_gains
+from edr.report.atari_gains import average_gains
 from edr.report.published import load_published
 
 PAPER = Path(__file__).resolve().parents[2] / "shared" / "paper" / "edr-paper.md"

@@ -19,8 +19,9 @@ from edr.data.clips import VideoSource
 from edr.data.datasets import DataLayoutError, resolve_root
 from edr.data.synthetic import action_video, write_synthetic_kth
 from edr.data.video import write_video
+from edr.report.runs import BadRecord, read_history
 from edr.run import run
-from edr.store.atomic import atomic_path, publish_dir
+from edr.store.atomic import atomic_path, publish_dir, write_json_atomic
 from edr.store.folders import plan_attempt
 from edr.store.identity import (
     ADDED_DEFAULTS,
@@ -422,3 +423,19 @@ def test_a_disk_that_fills_mid_run_leaves_no_half_written_file(tmp_path) -> None
     again = subprocess.run([*args, f"out_dir={run_dir}"], capture_output=True, text=True)
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads((run_dir / "run.json").read_text())["status"] == "finished"
+
+
+def test_a_history_is_stored_once_compactly_and_read_as_the_old_json(tmp_path) -> None:
+    rows = [{"env_steps": s, "train/score": -21.0 + s / 1e5} for s in range(0, 10**6, 1600)]
+    new, old = tmp_path / "new", tmp_path / "old"
+    write_json_atomic(new / "history.json.gz", rows)
+    write_json_atomic(old / "history.json", rows)
+    assert read_history(new) == read_history(old) == rows
+    assert (new / "history.json.gz").stat().st_size * 5 < (old / "history.json").stat().st_size
+    # the same rows, the same bytes (no time stamp): a re-render changes nothing
+    first = (new / "history.json.gz").read_bytes()
+    assert write_json_atomic(new / "history.json.gz", rows).read_bytes() == first
+    assert read_history(tmp_path) == []  # a run without a history
+    (new / "history.json.gz").write_bytes(first[:40])
+    with pytest.raises(BadRecord, match=r"history\.json\.gz is not gzip-compressed whole"):
+        read_history(new)

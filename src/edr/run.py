@@ -34,7 +34,13 @@ from edr.checks.command_line import check_command_line
 from edr.checks.config import ConfigError, Seed, Threads, check_config, path_problem
 from edr.report.published import load_published, lookup
 from edr.store.atomic import remove_partial_files
-from edr.store.checkpoints import UnreadableCheckpoint, WriteStopped, progress, progress_text
+from edr.store.checkpoints import (
+    UnreadableCheckpoint,
+    WriteStopped,
+    drop_checkpoint,
+    progress,
+    progress_text,
+)
 from edr.store.folders import (
     FOLDER_ROOM,
     Resume,
@@ -184,7 +190,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
             if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
                 log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
             with contextlib.suppress(OSError):
-                log_attempt(out_dir, record["status"], fingerprint)
+                log_attempt(out_dir, record["status"], fingerprint, git=record["git"])
         raise
 
     # ---- the finished record -----------------------------------------------------------------
@@ -198,7 +204,11 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     )
     with interrupts.deferred():  # a signal now stops what comes next, once this run is written
         write_record(out_dir, record)
-        log_attempt(out_dir, "resumed" if plan.action == "resume" else "ran", fingerprint)
+        log_attempt(out_dir, "resumed" if plan.action == "resume" else "ran", fingerprint,
+                    git=record["git"])  # fmt: skip
+        drop_checkpoint(
+            out_dir, record["metrics"]
+        )  # the record says finished: network.pt is enough
         log.info("%s", summary_line(record, out_dir))
     return record["metrics"]
 

@@ -5,16 +5,18 @@ with stratified-bootstrap 95 % intervals (rliable)."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from edr.report.atari_curves import INPUT_NAMES, millions, steps_to_targets_block
+from edr.report.atari_curves import INPUT_NAMES, millions, shared_prefix, steps_to_targets_block
+from edr.report.atari_gains import gains_block
 from edr.report.published import cite, lookup
 from edr.report.render import Table, mean_std
-from edr.report.runs import cells, finished, placeable, run_attempts, unfinished
+from edr.report.runs import cells, finished, placeable, run_attempts, run_history, unfinished
 from edr.store.identity import ADDED_DEFAULTS
 
 SCORES = {"Avg": "metrics.eval/mean", "Best": "metrics.eval/max", "Worst": "metrics.eval/min"}
@@ -45,7 +47,8 @@ def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
     """Finished Atari runs with ``game``, ``input``, ``budget`` (``"5M"``) and ``label`` columns:
     the label is the input's name, with its budget where runs of several budgets are shown
     together (``"FDR at 5M"``), so that no mean, curve or profile mixes budgets. A full-scale run
-    trained on fewer env steps than the paper's says so in its ``scale``."""
+    trained on fewer env steps than the paper's says so in its ``scale``, which names Table 1's
+    pinned settings (they are not the paper's)."""
     done = finished(runs, "atari").copy()
     if done.empty:
         return done.assign(game=[], input=[], budget=[], label=[])
@@ -64,67 +67,10 @@ def atari_runs(runs: pd.DataFrame) -> pd.DataFrame:
     paper = done["game"].map(_paper_env_steps)
     cut = (done["scale"] == "full") & (budget < paper)
     done.loc[cut, "scale"] = [
-        f"full settings, but {steps / 1e6:g}M of the paper's {full / 1e6:g}M env steps"
+        f"pinned settings (not the paper's), {steps / 1e6:g}M of its {full / 1e6:g}M env steps"
         for steps, full in zip(budget[cut], paper[cut], strict=True)
     ]
     return done
-
-
-def average_gains(games: dict[str, dict[str, dict[str, float]]]) -> dict[str, float | None]:
-    """Table 1's "Avg. gain" row: per column (avg, best, worst), the mean over games of FDR+EDR's
-    relative change over FDR, in %: mean((EDR - FDR) / |FDR|). ``games``: game -> input
-    (``fdr``, ``fdr_edr``) -> column -> score. On the paper's own rows it gives its +23.8 /
-    +20.9 / +70.2 (tested)."""
-    gains: dict[str, float | None] = {}
-    for column in ("avg", "best", "worst"):
-        changes = [
-            100
-            * (by_input["fdr_edr"][column] - by_input["fdr"][column])
-            / abs(by_input["fdr"][column])
-            for by_input in games.values()
-            if {"fdr", "fdr_edr"} <= set(by_input) and by_input["fdr"].get(column)
-        ]
-        gains[column] = float(np.mean(changes)) if changes else None
-    return gains
-
-
-def _our_games(grouped: pd.DataFrame) -> dict[str, dict[str, dict[str, float]]]:
-    """game -> input -> column -> our seed-averaged score, for games with one cell per input (of
-    one budget: ``grouped``'s cells are of one)."""
-    games: dict[str, dict[str, dict[str, float]]] = {}
-    for game, rows in grouped.groupby("game"):
-        if rows["input"].is_unique:
-            games[game] = {
-                r["input"]: {c.lower(): r[f"{m}:mean"] for c, m in SCORES.items()}
-                for _, r in rows.iterrows()
-            }
-    return games
-
-
-def _gain_block(grouped: pd.DataFrame, published: dict[str, Any]) -> str:
-    paper = lookup(published, "table1_atari", "games") or {}
-    paper_games = {g: {i: dict(cols) for i, cols in by.items()} for g, by in paper.items()}
-    printed = lookup(published, "table1_atari", "avg_gain_percent") or {}
-    budgets = sorted(grouped["budget"].unique(), key=millions)
-    rows = [
-        ("the paper, as printed", printed),
-        ("the paper, recomputed from its rows", average_gains(paper_games)),
-        *(
-            (f"ours at {budget} env steps (the games we ran with both inputs)",
-             average_gains(_our_games(grouped[grouped["budget"] == budget])))
-            for budget in budgets
-        ),
-    ]  # fmt: skip
-    lines = [
-        "Avg. gain of FDR+EDR over FDR: per column, the mean over games of (EDR - FDR) / |FDR|, %.",
-        "",
-        "| Avg. gain | Avg | Best | Worst |",
-        "|---|---:|---:|---:|",
-    ]
-    for label, gains in rows:
-        cells = [cite(gains.get(c), "+.1f") for c in ("avg", "best", "worst")]
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
 
 
 def _paper_rows(published: dict[str, Any]) -> pd.DataFrame:
@@ -206,31 +152,100 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
     return "\n".join(lines)
 
 
-def _budget_note(done: pd.DataFrame) -> str:
-    """How the rows of several budgets relate, and which runs continue a run of another config
-    (an attempt of theirs ran under another fingerprint: Table 1's screening, whose settings
-    were chosen on those runs)."""
-    said = (
-        "Budgets: a lane (sweeps/table1_lane.sh) trains each run once to its budget, and the "
-        "steps-to rows read its one curve at every score. Rows of two budgets of one game are "
-        "separate runs per seed: started alike (same seed), they repeat each other for the "
-        "first 1.5-2.6M env steps, then part; they are not independent samples, and the "
-        "longer is not a continuation of the shorter."
+# The settings every Table 1 row pins, as the notes name them, beside Appendix C's (the paper's
+# PAAC: an FT-LSTM core under RMSprop at 0.0224; it names no input normalisation nor precision).
+PINNED = {
+    "config.task.network.core": ("core", "ftlstm (feature-tracking LSTM)"),
+    "config.task.optim.name": ("optimizer", "RMSprop"),
+    "config.task.optim.lr": ("learning rate", "0.0224"),
+    "config.task.network.input_norm": ("input normalisation", "none stated"),
+    "metrics.train/precision": ("precision", "not stated"),
+}
+DEFAULT_LR = {"adam": 7e-4, "rmsprop_tf": 0.0224}  # lr: null takes the optimizer's (atari.yaml)
+
+
+def _pinned_note(done: pd.DataFrame) -> str:
+    """What every row ran with where Appendix C says otherwise: the core, the optimizer and its
+    learning rate, the input normalisation and the precision (chosen on Pong in Table 1's
+    screening, results/learning/README.md)."""
+    said = []
+    for column, (name, paper) in PINNED.items():
+        given = done.reindex(columns=[column]).iloc[:, 0]
+        if column == "config.task.optim.lr":
+            given = given.fillna(done.reindex(columns=["config.task.optim.name"]).iloc[:, 0]
+                                 .map(DEFAULT_LR))  # fmt: skip
+        if column == "metrics.train/precision":  # records from before the setting: float32
+            given = given.fillna(NAMED_SETTINGS[column][1])
+        values = sorted({_setting_text(v) for v in given.dropna()})
+        said.append(f"{name} {' / '.join(values) or '?'} (Appendix C: {paper})")
+    return (
+        "Settings: Table 1's pinned experiment (conf/experiment/table1_atari.yaml), chosen on "
+        "Pong in its screening, not the paper's: " + "; ".join(said) + ". The network is "
+        "PAAC's feed-forward one (conv 16 8x8/4, conv 32 4x4/2, FC 256) on batch-normed frames; "
+        "32 envs, 5-step rollouts, entropy 0.02, clip 3.0 and the linear decay are Appendix C's."
     )
-    continued = sorted(
-        f"{g} {INPUT_NAMES.get(i, i)} seed {int(seed)} at {b}"
-        for g, i, b, seed, record, fingerprint in zip(
-            done["game"], done["input"], done["budget"], done["seed"], done["record"],
-            done["fingerprint"], strict=True,
+
+
+def _budget_note(done: pd.DataFrame) -> str:
+    """How the rows of several budgets relate: per pair of runs of one game, input and seed at
+    two budgets, the env steps their histories share (identical rows) before they part."""
+    shared = []
+    for (game, inputs, seed), runs in done.groupby(["game", "input", "seed"]):
+        if runs["budget"].nunique() < 2:
+            continue
+        ordered = runs.sort_values("budget", key=lambda b: b.map(millions))
+        histories = [run_history(r) for r in ordered["record"]]
+        for (b1, h1), (b2, h2) in itertools.combinations(
+            zip(ordered["budget"], histories, strict=True), 2
+        ):
+            steps = shared_prefix(h1, h2)
+            shared.append(f"{game} {INPUT_NAMES.get(inputs, inputs)} seed {int(seed)} {b1} and "
+                          f"{b2}: {steps:,}")  # fmt: skip
+    if not shared:
+        return ""
+    return (
+        "Budgets: rows of two budgets of one game are separate runs per seed, started alike "
+        "(same seed); each pair's histories are identical up to (env steps): "
+        f"{'; '.join(shared)}; then they part. They are not independent samples, and the longer "
+        "is not a continuation of the shorter."
+    )
+
+
+def _attempts_note(done: pd.DataFrame) -> str:
+    """The runs trained in more than one attempt (``attempts.jsonl``): when each stopped and
+    continued from its checkpoint, and the commit each attempt ran (the finishing attempt's from
+    its record where the attempt line names none), with those that continue a run of another
+    config (Table 1's screening, whose settings were chosen on those very runs)."""
+    said, screened = [], []
+    for g, i, b, seed, record, fingerprint, git in zip(
+        done["game"], done["input"], done["budget"], done["seed"], done["record"],
+        done["fingerprint"], done["git"], strict=True,
+    ):  # fmt: skip
+        attempts = [a for a in run_attempts(record) if a.get("outcome") != "skipped"]
+        name = f"{g} {INPUT_NAMES.get(i, i)} seed {int(seed)} at {b}"
+        if any(a.get("fingerprint") not in (None, fingerprint) for a in attempts):
+            screened.append(name)
+        if len(attempts) > 1:
+            steps = [
+                f"{a.get('outcome')} {str(a.get('at', '?'))[:16].replace('T', ' ')}"
+                + (f" ({str(a['git'])[:7]})" if a.get("git") else "")
+                for a in attempts
+            ]
+            said.append(f"{name}: {', '.join(steps)}, finished on {str(git)[:7]}")
+    if not said:
+        return ""
+    text = (
+        "Continued runs: a lane (sweeps/table1_lane.sh) continues a stopped run from its "
+        "checkpoint, on whatever commit it then runs; each attempt's end (UTC) and commit "
+        "(attempts.jsonl; lines from before attempts named theirs give only the finishing "
+        f"commit, from run.json): {'; '.join(sorted(said))}."
+    )
+    if screened:
+        text += (
+            " These continue a run of another config (the screening that chose the settings, "
+            f"on these very runs): {', '.join(sorted(screened))}."
         )
-        if any(a.get("fingerprint") not in (None, fingerprint) for a in run_attempts(record))
-    )  # fmt: skip
-    if continued:
-        said += (
-            " These runs continue a run of another config (the screening that chose the "
-            f"settings, on these very runs): {', '.join(continued)}."
-        )
-    return said
+    return text
 
 
 def _evaluation_note(done: pd.DataFrame) -> str:
@@ -317,7 +332,7 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             }
         )
         extra = iqm_table(normalised_scores(done, published))
-    parts = (extra, steps_to_targets_block(done, published), _gain_block(grouped, published))
+    parts = (extra, steps_to_targets_block(done, published), gains_block(done, published))
     extra = "\n\n".join(part for part in parts if part)
     return Table(
         "table1_atari",
@@ -329,8 +344,10 @@ def table1_atari(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
             for note in (
                 "Avg / Best / Worst: mean, max and min raw score of the evaluation games of a "
                 "run (30 full games at full scale), each then averaged over seeds (± std).",
+                _pinned_note(done),
                 _evaluation_note(done),
                 _budget_note(done),
+                _attempts_note(done),
                 _settings_note(done),
                 "Env steps/s: the training loop's throughput (`train/fps`, from the start of a "
                 "run's last attempt), on the machine named, with whatever else ran beside it.",

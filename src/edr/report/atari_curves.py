@@ -51,6 +51,22 @@ def score_at(history: list[dict[str, Any]], env_steps: int) -> float | None:
     return float(scores[-1]) if scores else None
 
 
+def shared_prefix(first: list[dict[str, Any]], second: list[dict[str, Any]]) -> int:
+    """The env steps up to which two runs' histories are identical (every value of each row but
+    its timings, ``time/`` and ``train/fps``): where two runs started alike part; 0 where their
+    first rows differ."""
+
+    def kept(row: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in row.items() if not k.startswith(("time/", "train/fps"))}
+
+    shared = 0
+    for a, b in zip(first, second, strict=False):
+        if kept(a) != kept(b):
+            break
+        shared = int(a["env_steps"])
+    return shared
+
+
 def _reached(steps: list[int | None]) -> str:
     """One cell: how many runs reached a score, and their env steps (mean ± std, min - max)."""
     got = [s / M for s in steps if s is not None]

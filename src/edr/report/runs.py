@@ -21,6 +21,7 @@ import json
 import math
 import os
 import sys
+import zlib
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -41,8 +42,11 @@ BASE_COLUMNS = ["record", "run_dir", "task", "status", "error", "fingerprint", "
 
 # The files beside a record that a table or figure reads, and the tasks whose finished runs must
 # have them; each is read only if it lies inside its run folder.
-HISTORY, CONFUSION, PIXEL_RESPONSE = "history.json", "confusion.json", "pixel_response.png"
 PREDICTIONS = "predictions.json"  # per-video test predictions (edr.tasks.predictions)
+CONFUSION, PIXEL_RESPONSE = "confusion.json", "pixel_response.png"
+# A run's history, a row per log: new Atari runs store it gzip-compressed, older runs and the
+# recognition tasks as plain JSON; the first of these a run has is read.
+HISTORIES = ("history.json.gz", "history.json")
 REQUIRED_FILES = {"dvs_transfer": (CONFUSION,), "representation_demo": (PIXEL_RESPONSE,)}
 MAPPINGS = ("data", "choices", "metrics", "machine", "config", "semantic_config")
 # The most bytes a file the tables read may hold (a record, else a history or confusion): memory
@@ -77,9 +81,10 @@ def run_file(run_dir: Path, name: str) -> Path | None:
 
 
 def read_json(path: Path) -> Any:
-    """The JSON in ``path``; :class:`BadRecord` naming the file for bytes that are not UTF-8,
-    text that is not JSON, JSON nested past Python's recursion limit, or more bytes than a
-    file of its name holds (:data:`MAX_BYTES`: refused before it is read)."""
+    """The JSON in ``path`` (gzip-compressed where its name ends in ``.gz``); :class:`BadRecord`
+    naming the file for bytes that are not UTF-8 or not gzip, text that is not JSON, JSON nested
+    past Python's recursion limit, or more bytes than a file of its name holds (:data:`MAX_BYTES`:
+    refused before it is read, and a compressed file's text past it is never inflated)."""
     limit = MAX_BYTES.get(path.name, MAX_OTHER_BYTES)
     try:
         if (size := path.stat().st_size) > limit:
@@ -87,7 +92,17 @@ def read_json(path: Path) -> Any:
                 f"{path.name} is {size / 2**20:.1f} MiB, more than the {limit >> 20} MiB such a "
                 "file holds: not read"
             )
-        return json.loads(regular_file_bytes(path).decode())
+        raw = regular_file_bytes(path)
+        if path.name.endswith(".gz"):
+            inflater = zlib.decompressobj(wbits=31)  # gzip's header and trailer
+            raw = inflater.decompress(raw, limit + 1)
+            if len(raw) > limit:
+                raise BadRecord(f"{path.name} inflates to more than {limit >> 20} MiB: not read")
+            if not inflater.eof:
+                raise BadRecord(f"{path.name} is not gzip-compressed whole")
+        return json.loads(raw.decode())
+    except (EOFError, zlib.error):
+        raise BadRecord(f"{path.name} is not gzip-compressed whole") from None
     except UnicodeDecodeError:
         raise BadRecord(f"{path.name} is not UTF-8 text") from None
     except RecursionError:
@@ -112,11 +127,12 @@ def _check_files(run_dir: Path, record: dict[str, Any]) -> None:
             if run_file(run_dir, name) is None:
                 raise BadRecord(f"finished, but its {name} is missing")
     run_file(run_dir, PIXEL_RESPONSE)
-    history = run_json(run_dir, HISTORY)
+    name = next((n for n in HISTORIES if run_file(run_dir, n) is not None), None)
+    history = run_json(run_dir, name) if name else None
     if history is not None and not (
         isinstance(history, list) and all(isinstance(row, dict) for row in history)
     ):
-        raise BadRecord(f"{HISTORY} is not a list of rows")
+        raise BadRecord(f"{name} is not a list of rows")
     confusion = run_json(run_dir, CONFUSION)
     if confusion is not None and not (
         isinstance(confusion, dict) and {"matrix", "classes"} <= confusion.keys()
@@ -425,6 +441,12 @@ def run_attempts(record: str) -> list[dict[str, Any]]:
     return found
 
 
+def read_history(run_dir: Path) -> list[dict[str, Any]]:
+    """The rows of the run's history in ``run_dir`` (:data:`HISTORIES`); none if it has none."""
+    name = next((n for n in HISTORIES if run_file(run_dir, n) is not None), None)
+    return (run_json(run_dir, name) if name else None) or []
+
+
 def run_history(record: str) -> list[dict[str, Any]]:
-    """The rows of a run's ``history.json`` (beside its record); none if it has none."""
-    return run_json(Path(record).parent, HISTORY) or []
+    """The rows of a run's history (beside its record); none if it has none."""
+    return read_history(Path(record).parent)

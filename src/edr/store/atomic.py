@@ -6,6 +6,7 @@ the umask), so a group can read what a sweep wrote.
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import shutil
@@ -66,8 +67,15 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
 
 
 def write_json_atomic(path: str | Path, payload: Any) -> Path:
-    """``payload`` as indented JSON (non-JSON values as their ``str``)."""
-    return write_text_atomic(path, json.dumps(payload, indent=2, default=str) + "\n")
+    """``payload`` as indented JSON (non-JSON values as their ``str``); where ``path`` ends in
+    ``.gz``, compact JSON gzip-compressed (a run's long history: about a tenth of the bytes),
+    without a time stamp, so the same payload gives the same bytes."""
+    if Path(path).suffix != ".gz":
+        return write_text_atomic(path, json.dumps(payload, indent=2, default=str) + "\n")
+    text = json.dumps(payload, separators=(",", ":"), default=str)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(gzip.compress(text.encode(), mtime=0))
+    return Path(path)
 
 
 def publish_dir(root: str | Path, write: Callable[[Path], None]) -> Path:

@@ -21,6 +21,7 @@ from edr.checks.config import ConfigError
 from edr.store.atomic import atomic_path
 
 CHECKPOINT = "checkpoint.pt"
+NETWORK = "network.pt"  # a finished run's trained network: its state_dict and the arguments that rebuild it
 DATA_FINGERPRINT = "data_fingerprint"  # the content fingerprint of the data it trained on
 log = logging.getLogger(__name__)
 
@@ -28,6 +29,20 @@ log = logging.getLogger(__name__)
 class WriteStopped(OSError):
     """A write the OS refused part-way; the message names the file, the free space, and that
     the file there is the previous one, whole."""
+
+
+def drop_checkpoint(out_dir: Path, metrics: dict[str, Any]) -> bool:
+    """Remove a finished run's ``checkpoint.pt`` (optimizer state and the history again, several
+    times the network's size) once its finished record is written, where the run left its
+    ``network.pt``, all a finished run needs; kept for a run that diverged (its checkpoint holds
+    the last network that was numbers, its ``network.pt`` may hold NaN). Returns whether it
+    removed one."""
+    checkpoint, network = out_dir / CHECKPOINT, out_dir / NETWORK
+    if "train/diverged_step" in metrics or not network.is_file() or not checkpoint.is_file():
+        return False
+    checkpoint.unlink()
+    log.info("%s: finished, %s kept: %s removed", out_dir, NETWORK, CHECKPOINT)
+    return True
 
 
 def save_atomic(payload: object, path: Path) -> None:

@@ -34,7 +34,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, read_write
 
 from edr.checks.config import ConfigError, path_problem
-from edr.store.checkpoints import CHECKPOINT
+from edr.store.checkpoints import CHECKPOINT, NETWORK
 from edr.store.identity import (
     IDENTITY_KEYS,
     config_diff,
@@ -107,9 +107,15 @@ def plan_attempt(out_dir: Path, fingerprint: str, semantic: dict[str, Any], resu
         if old == semantic:
             return _plan_for_this_config({**record, "fingerprint": fingerprint}, checkpoint,
                                          resume, out_dir)  # fmt: skip
-        extended = _raised_budgets(old, semantic) if checkpoint is not None else ()
-        if extended:
+        extended = _raised_budgets(old, semantic)
+        if extended and checkpoint is not None:
             return Plan("resume", record, extended)
+        if extended and record.get("status") == "finished":
+            raise ConfigError(
+                f"{out_dir} finished and kept its {NETWORK}, not the {CHECKPOINT} a larger budget "
+                f"({'; '.join(extended)}) would continue from: choose another folder for the "
+                "longer run, or pass resume=false to start over"
+            )
         changed = config_diff(old, semantic) if old else ["(the record predates fingerprints)"]
         raise ConfigError(
             f"{out_dir} holds a run of another config ({'; '.join(changed)}): "

@@ -6,7 +6,6 @@ FDR alone and with FDR+EDR; a record per backend, ``<out-dir>/atari_<backend>_<h
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import tempfile
 import time
@@ -55,8 +54,9 @@ def training_throughput(
     bar shows them, and steady (from a quarter of the way on, after the first updates compiled
     the EDR kernels and warmed the allocator: what a run of hours sees); and where the steady
     part's time went, ms per update by phase (``time/*_ms`` of its history)."""
+    from edr.report.runs import read_history
     from edr.rl.settings import EnvSettings, EvalSettings, NetworkSettings
-    from edr.tasks.atari import HISTORY, train_paac
+    from edr.tasks.atari import train_paac
 
     chosen = {"core": core, "precision": precision}
     network = NetworkSettings(**{k: v for k, v in chosen.items() if v is not None})
@@ -71,7 +71,7 @@ def training_throughput(
             env_steps=env_steps,
             evaluation=EvalSettings(plays=1, max_steps=1), checkpoint_every=10**9, logger=None,
         )  # fmt: skip
-        history = json.loads((Path(out_dir) / HISTORY).read_text())
+        history = read_history(Path(out_dir))
     fps = float(metrics["train/fps"])
     if len(history) < 2:
         return fps, fps, _phases(history)

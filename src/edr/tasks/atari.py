@@ -50,6 +50,7 @@ from edr.store.atomic import write_json_atomic
 from edr.store.checkpoints import (
     CHECKPOINT,
     DATA_FINGERPRINT,
+    NETWORK,
     check_same_data,
     load_checkpoint,
     restore,
@@ -61,8 +62,9 @@ from edr.tasks.rebuild import instantiate_from_record
 from edr.tasks.run_folder import RunFolder, check_weights, open_run_folder, payload_part
 from edr.tasks.scalars import LoggerName, open_logger
 
-NETWORK = "network.pt"  # the trained network's state_dict and the arguments that rebuild it
-HISTORY = "history.json"  # a row per log_every updates: env steps, losses, fps, training score
+# a row per log_every updates: env steps, losses, fps, training score; gzip-compressed JSON,
+# read by edr.report.runs.read_history (as older runs' history.json)
+HISTORY = "history.json.gz"
 SCORES = "eval_scores.json"  # the raw score of every evaluation game
 log = logging.getLogger(__name__)
 
