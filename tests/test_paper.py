@@ -77,8 +77,8 @@ def test_table1_atari(paper) -> None:
     ]  # fmt: skip
     assert all(r[header.index("Runs")] == "2" for r in rows)  # two seeds per cell
     assert "Avg. gain of FDR+EDR over FDR" in text
-    assert "| the paper, as printed | +23.8 | +20.9 | +70.2 |" in text
-    assert "| the paper, recomputed from its rows | +23.8 | +20.9 | +70.2 |" in text
+    assert "| the paper, as printed | 6 of 6 | +23.8 | +20.9 | +70.2 |" in text
+    assert "| the paper, recomputed from its rows | 6 of 6 | +23.8 | +20.9 | +70.2 |" in text
     paper_block = text[text.index("## The paper's numbers") :]
     paper_rows = {(r[0], r[1]): r for r in _rows(paper_block)}
     assert paper_rows[("Pong", "FDR+EDR")][2:] == ["19.5", "21", "14", "30M"]

@@ -204,12 +204,14 @@ def test_the_same_seed_scores_the_same_beside_the_runs_own_evaluation(
     written = {scored.name, "network_eval_seed4_plays2.json"}
     assert set(_files(folder)) - set(own) == written  # nothing else written, nothing changed
     assert all(_files(folder)[name] == data for name, data in own.items())
-    # a stopped run: scored from its checkpoint, and still none of the run's own files written
+    # a record that says stopped, in a folder whose finished run dropped its checkpoint.pt: its
+    # network.pt is scored, and still none of the run's own files is written
+    assert not (folder / "checkpoint.pt").exists()
     _tamper(folder, lambda r: r.update(status="interrupted"))
     own = _files(folder)
     stopped = atari.evaluate_checkpoint(folder, plays=1)  # the run's own seed, 0
     assert stopped["eval/seed"] == 0 and stopped["train/env_steps"] == 20
-    assert set(_files(folder)) - set(own) == {"checkpoint_eval_seed0_plays1.json"}
+    assert set(_files(folder)) - set(own) == {"network_eval_seed0_plays1.json"}
 
 
 def test_a_bad_seed_is_one_line(folder, capsys) -> None:

@@ -157,38 +157,6 @@ def _existing_file_problem(path: Any) -> str | None:
     )
 
 
-def video_problem(path: Any, min_frames: int = 2) -> str | None:
-    """What makes ``path`` no video to read, found before decoding it: no file there (a link
-    in a loop, a folder), 0 bytes, a file OpenCV cannot open (text, a cut container), or fewer
-    than ``min_frames`` frames by its container's count. A video cut part way past its header is
-    found as it decodes (``read_video``)."""
-    from edr.data.video import UnreadableVideo, check_video_file, frame_count  # loads OpenCV
-
-    if problem := path_problem(path):
-        return problem
-    try:
-        check_video_file(path)
-    except UnreadableVideo as error:
-        return f"a video file ({error})"
-    count = frame_count(path)
-    if count == 0:  # not said: OpenCV could not open the container
-        import cv2
-
-        capture = cv2.VideoCapture(str(path))
-        opened = capture.isOpened()
-        capture.release()
-        if not opened:
-            return (
-                "a video OpenCV can decode (it cannot open this file: corrupt, cut or not a video)"
-            )
-    if 0 < count < min_frames:
-        return f"a video of at least {min_frames} frames (its container holds {count})"
-    return None
-
-
-VideoFile = Annotated[str, Check(video_problem)]  # a video of two frames or more, checked unread
-
-
 # A folder a run writes into, with room for a subfolder and a file in it (a cache's entries).
 OutputDir = Annotated[str, Check(lambda path: writable_folder_problem(path, below=2))]
 DataRoot = Annotated[str, Check(_data_root_problem)]  # its layout is checked by the data set

@@ -5,12 +5,13 @@ from __future__ import annotations
 import errno
 import shutil
 from pathlib import Path
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
 import torch
 
-from edr.checks.config import ConfigError
+from edr.checks.config import Check, ConfigError, path_problem
 
 
 class UnreadableVideo(ConfigError):
@@ -123,3 +124,31 @@ def _check_written(tmp: Path, path: Path) -> None:
             f"writing the video {path} left an empty file (the disk holding it has "
             f"{free / 2**20:.1f} MiB free: full?); nothing was kept",
         )
+
+
+def video_problem(path: Any, min_frames: int = 2) -> str | None:
+    """What makes ``path`` no video to read, found before decoding it: no file there (a link
+    in a loop, a folder), 0 bytes, a file OpenCV cannot open (text, a cut container), or fewer
+    than ``min_frames`` frames by its container's count. A video cut part way past its header is
+    found as it decodes (``read_video``)."""
+    if problem := path_problem(path):
+        return problem
+    try:
+        check_video_file(path)
+    except UnreadableVideo as error:
+        return f"a video file ({error})"
+    count = frame_count(path)
+    if count == 0:  # not said: OpenCV could not open the container
+        capture = cv2.VideoCapture(str(path))
+        opened = capture.isOpened()
+        capture.release()
+        if not opened:
+            return (
+                "a video OpenCV can decode (it cannot open this file: corrupt, cut or not a video)"
+            )
+    if 0 < count < min_frames:
+        return f"a video of at least {min_frames} frames (its container holds {count})"
+    return None
+
+
+VideoFile = Annotated[str, Check(video_problem)]  # a video of two frames or more, checked unread

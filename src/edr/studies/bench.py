@@ -40,10 +40,10 @@ from edr.checks.config import (
     Threads,
     check_allocations,
     mismatch,
-    video_problem,
     writable_folder_problem,
 )
 from edr.data import read_video, synthetic_scene
+from edr.data.video import video_problem
 from edr.models.paac import Core
 from edr.models.precision import PRECISION_CHOICES
 from edr.report.published import load_published

@@ -167,14 +167,9 @@ def fit_recognition(
 ) -> Fitted:
     """Train ``backbone`` on ``representation`` of the videos, test with 10 crops; returns the
     model and the metrics, and writes the history, confusion matrix, per-video predictions,
-    figures and model. Controls (:class:`ClipDataset`): ``shuffle_frames``, every clip's frames
-    in a random order once it is cut (before an on-the-fly representation; after a precomputed
-    one): frames shuffled within each clip, motion statistics survive; ``frame_control``:
-    ``one_frame``, one frame of each clip repeated (appearance alone, no motion at all), or
-    ``shuffled_in_video``, each video's frames in one random order before clips are cut; both
-    before an on-the-fly representation only.
-    ``normalize_input``: each channel of the backbone's input standardised
-    (:func:`edr.models.input_norm`), whatever the representation."""
+    figures and model. The controls ``shuffle_frames`` (within each clip: motion statistics
+    survive) and ``frame_control`` (``one_frame``: appearance alone; ``shuffled_in_video``) are
+    :func:`_frame_control`'s; ``normalize_input`` standardises each input channel."""
     _check_sizes(crop, resize, frames, batch_size, 1 if gray else 3, representation)
     _check_backbone_takes(backbone, representation, 1 if gray else 3, frames, crop)
     dev = torch_device(device)

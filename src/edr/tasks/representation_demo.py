@@ -19,8 +19,9 @@ import matplotlib.pyplot as plt
 import torch
 from tqdm import tqdm
 
-from edr.checks.config import ConfigError, Range, VideoFile
+from edr.checks.config import ConfigError, Range
 from edr.data.synthetic import FrameSide, video_or_scene
+from edr.data.video import VideoFile
 from edr.representations import Representation
 from edr.representations.base import check_enough_frames
 from edr.store.atomic import save_figure
