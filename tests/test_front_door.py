@@ -72,8 +72,8 @@ def test_an_interrupt_dropped_in_a_callback_stops_at_the_next_step(
     assert record["resumes_from"] == {"checkpoint": "checkpoint.pt", "epoch": 1}
 
     (out / ".confusion.k2j4.partial.png").write_bytes(b"half a png")  # a writer killed mid-write
-    monkeypatch.setattr(interrupts._State, "first", None)
-    monkeypatch.setattr(recognition, "evaluate", real_evaluate)
+    assert interrupts._State.first == signal.SIGTERM  # the stopped run's signal, still latched:
+    monkeypatch.setattr(recognition, "evaluate", real_evaluate)  # the next run() clears it
     run(compose_config(*overrides, f"out_dir={out}"))
     record = json.loads((out / "run.json").read_text())
     assert record["status"] == "finished" and record["resumed"]

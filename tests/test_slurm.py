@@ -125,7 +125,7 @@ def test_a_cancelled_job_resumes_from_its_checkpoint_when_the_sweep_is_run_again
     try:
         _wait_for((cell / "checkpoint.pt").exists, "a checkpoint")
         slurm.cancel()  # scancel: SIGTERM to the job, which ends the run as kill does
-        _wait_for(lambda: _record(cell / "run.json").get("status") == "failed", "the record")
+        _wait_for(lambda: _record(cell / "run.json").get("status") == "interrupted", "the record")
     finally:
         _stop(waiting)
     assert _record(cell / "run.json")["status"] == "interrupted"

@@ -107,6 +107,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     the same config, resumes from its checkpoint an interrupted one, refuses a folder holding
     another config.
     """
+    interrupts.clear()  # a signal an earlier run in this process stopped on is not this run's
     check_config(cfg, entry=ENTRY_KEYS)
     out_dir = Path(cfg.out_dir)
     if problem := path_problem(out_dir, below=FOLDER_ROOM["run"]):

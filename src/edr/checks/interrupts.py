@@ -47,6 +47,12 @@ def install() -> None:
         signal.signal(signum, _on_signal)
 
 
+def clear() -> None:
+    """Forget the signal an earlier run in this process stopped on, so that the next run (in a
+    notebook, a test, a sweep's next job) starts unstopped instead of raising at its first step."""
+    _State.first = None
+
+
 def raise_if_stopping() -> None:
     """Raise the interrupt of a signal that came before, if one did: a loop still running then
     had it dropped somewhere (a callback, a ``__del__``)."""
