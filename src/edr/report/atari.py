@@ -91,13 +91,16 @@ def _paper_env_steps(game: str) -> int:
 
 def normalised_scores(done: pd.DataFrame, published: dict[str, Any]) -> dict[str, np.ndarray]:
     """Per label (an input, and its budget where there are several: :func:`atari_runs`), (runs,
-    games) human-normalised average scores — the games every label of its budget has, the
-    first n seeds where each game has at least n runs."""
+    games) human-normalised average scores — the games every label of its budget ran with the
+    most seeds (a game still short of them waits: one seed does not pull the others down to
+    one), the first n seeds where each game has at least n runs."""
     reference = published.get("atari_reference_scores", {})
     out = {}
     for _, at_budget in done.groupby("budget"):
         labels = at_budget.groupby("label")
-        games = sorted(set.intersection(*(set(g["game"]) for _, g in labels)) & reference.keys())
+        shared = sorted(set.intersection(*(set(g["game"]) for _, g in labels)) & reference.keys())
+        seeds = {g: min(int((r["game"] == g).sum()) for _, r in labels) for g in shared}
+        games = [g for g in shared if seeds[g] == max(seeds.values())]
         for name, runs in labels:
             per_game = [
                 runs[runs["game"] == g].sort_values("seed")[SCORES["Avg"]].to_numpy() for g in games
@@ -137,7 +140,8 @@ def iqm_table(scores: dict[str, np.ndarray], reps: int = 2000) -> str:
         )
     lines = [
         "Beyond the paper: interquartile mean of human-normalised average scores over the games "
-        "every input of a budget ran (Games), 95 % stratified-bootstrap interval (rliable, "
+        "every input of a budget ran with the most seeds (Games), 95 % stratified-bootstrap "
+        "interval (rliable, "
         f"{reps} resamples):",
         "",
         "| Input | Games | Runs a game | IQM | 95 % interval |",
