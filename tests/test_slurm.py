@@ -31,9 +31,10 @@ if SLURM_ENV is None:
     pytest.skip(NO_CLUSTER, allow_module_level=True)  # one line for the module
 
 EDR_RUN = str(Path(sys.executable).parent / "edr-run")
-# One KTH cell at debug=tiny, long enough (4 epochs of 5 batches) to be cancelled inside.
-LONG_KTH = ("task=kth", "debug=tiny", "task.epochs=4", "task.clips_per_epoch=30")
-LONG_CELL = "debug=tiny,task=kth,task.clips_per_epoch=30,task.epochs=4"
+# One KTH cell at debug=tiny, long enough (4 epochs of 200 batches, about 3 s each here) to be
+# cancelled inside: at 5 batches an epoch the whole run ended before scancel landed.
+LONG_KTH = ("task=kth", "debug=tiny", "task.epochs=4", "task.clips_per_epoch=1200")
+LONG_CELL = "debug=tiny,task=kth,task.clips_per_epoch=1200,task.epochs=4"
 
 
 class Slurm:
