@@ -20,6 +20,7 @@ from edr.report.recognition import table4_kth
 from edr.report.render import to_markdown
 from edr.report.runs import load_runs
 from edr.store import folders
+from test_adversarial_records import _write  # a folder holding one run.json
 
 
 def _record(seed: int = 0, accuracy: Any = 0.5, **fields: Any) -> dict[str, Any]:
@@ -34,16 +35,6 @@ def _record(seed: int = 0, accuracy: Any = 0.5, **fields: Any) -> dict[str, Any]
         "metrics": {"eval/accuracy": accuracy, "eval/chance": 1 / 6},
     }  # fmt: skip
     return {**record, **fields}
-
-
-def _write(folder: Path, record: Any = None, text: str | bytes | None = None) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / "run.json"
-    if isinstance(text, bytes):
-        path.write_bytes(text)
-    else:
-        path.write_text(text if text is not None else json.dumps(record))
-    return path
 
 
 def _without(key: str) -> dict[str, Any]:
@@ -122,7 +113,7 @@ def test_a_record_that_cannot_count_is_listed_never_half_counted(tmp_path, monke
     if callable(make) and not isinstance(make, dict):
         make(bad, monkeypatch) if make is _big_history else make(bad)
     elif isinstance(make, str | bytes):
-        _write(bad, text=make)
+        _write(bad, None, text=make)
     else:
         _write(bad, make)
     found = load_runs([tmp_path])
@@ -232,7 +223,7 @@ def test_a_sweep_counts_a_cell_refused_after_its_attempt_once(tmp_path, monkeypa
 
 def test_a_runs_attempts_are_read_bounded_and_a_pipe_not_at_all(tmp_path, monkeypatch) -> None:
     monkeypatch.setattr(runs_module, "MAX_OTHER_BYTES", 200)
-    record = _write(tmp_path / "a", _record(0))
+    record = _write(tmp_path / "a", _record(0)) / "run.json"
     lines = [json.dumps({"unix": i, "outcome": "ran", "fingerprint": "f"}) for i in range(50)]
     (tmp_path / "a" / "attempts.jsonl").write_text("\n".join(lines) + "\n")
     found = runs_module.run_attempts(str(record))
