@@ -97,7 +97,7 @@ def test_an_aedat4_file_renamed_aedat_is_read_by_its_header(tmp_path) -> None:
 def test_a_one_hour_recording_bins_only_the_frames_used() -> None:
     # two events an hour apart: binned whole, 90,000 frames of 128x128 (11 GiB)
     events = _events([0, 3_600_000_000], x=[3, 4], y=[5, 6])
-    clip = _event_clip(events, 128, 128, 40_000.0, frames=4, crop=128)
+    clip = _event_clip([events], 128, 128, 40_000.0, frames=4, crop=128)
     assert tuple(clip.shape) == (4, 2, 128, 128) and float(clip.sum()) == 1.0
 
 

@@ -386,6 +386,89 @@ def test_reading_a_dense_evt3_file_holds_its_events_once(tmp_path, monkeypatch) 
     np.testing.assert_array_equal(events, expected)
 
 
+def _dense_class_folder(root: Path, blocks: int) -> int:
+    """``root/boxing/dense.raw``: an EVT 3.0 recording of a 64 x 64 sensor, every pixel of
+    x < 60 ON at each of ``blocks`` µs (3,840 events in 450 words a µs); how many events."""
+    row = [0x0000, 0x3800, *[0x4FFF] * 5]  # ADDR_Y, VECT_BASE_X (x 0, ON), 5 x VECT_12
+    words = np.empty((blocks, 2 + 64 * 7), np.uint16)
+    i = np.arange(blocks)
+    words[:, 0], words[:, 1] = 0x8000 | (i >> 12), 0x6000 | (i & 0xFFF)  # TIME_HIGH, TIME_LOW
+    words[:, 2:] = np.tile(row, 64)
+    words[:, 2::7] = np.arange(64)  # each row's y
+    (root / "boxing").mkdir(parents=True)
+    (root / "boxing" / "dense.raw").write_bytes(
+        b"% evt 3.0\n% format EVT3;width=64;height=64\n" + words.astype("<u2").tobytes()
+    )
+    return blocks * 64 * 60
+
+
+def test_a_dense_dvs_class_folder_is_binned_in_bounded_memory(tmp_path, monkeypatch) -> None:
+    """issue 71: a dense recording of a DVS class folder was decoded whole before binning
+    (3.5 GB for 20 MB); now a chunk at a time, however dense: memory is a chunk and the clip."""
+    from edr.data.events import recording
+    from edr.representations import DVSSimulator
+    from edr.tasks.dvs_transfer import _recorded_clips
+
+    monkeypatch.setattr(prophesee, "CHUNK_EVENTS", 20_000)
+    monkeypatch.setattr(recording, "MAX_READ_EVENTS", 100_000)  # read whole, it was refused
+    count = _dense_class_folder(tmp_path / "dvs", 200)  # 768,000 events (10 MB) in 180 KB
+    _dense_evt3(tmp_path / "warm.raw", 2)
+    list(iter_recording(tmp_path / "warm.raw"))  # numba's compiled code loaded outside the trace
+    tracemalloc.start()
+    try:
+        (clip,), labels, _ = _recorded_clips(
+            str(tmp_path / "dvs"), ["boxing", "walking"], DVSSimulator(), frames=4, crop=64
+        )
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < count * EVENT_DTYPE.itemsize / 4, peak  # whole: 2x the events' 10 MB
+    assert labels == [0] and tuple(clip.shape) == (4, 2, 64, 64)  # 200 µs: one frame, held
+    assert (clip[:, 0, :, :60] == 200).all() and float(clip.sum()) == 4 * count  # all ON
+
+
+def test_a_dvs_recording_whose_binning_cannot_fit_is_refused_naming_it(
+    tmp_path, monkeypatch
+) -> None:
+    from edr.checks import config
+    from edr.checks.config import ConfigError
+    from edr.representations import DVSSimulator
+    from edr.tasks.dvs_transfer import _recorded_clips
+
+    _dense_class_folder(tmp_path / "dvs", 1)
+    monkeypatch.setattr(config, "available_memory_bytes", lambda: 1 << 10)
+    path = tmp_path / "dvs" / "boxing" / "dense.raw"
+    with pytest.raises(ConfigError) as caught:
+        _recorded_clips(str(tmp_path / "dvs"), ["boxing"], DVSSimulator(), frames=4, crop=64)
+    message = str(caught.value)
+    assert message.startswith(f"task.dvs_root={tmp_path / 'dvs'}: {path}'s frames binned 16 ")
+    assert "at its 64x64 sensor would take" in message and "\n" not in message
+
+
+def test_a_clip_binned_chunk_by_chunk_is_the_clip_of_all_its_events() -> None:
+    """A recording's chunks, binned as they come, give what its events binned at once give
+    (tonic's windows), across groups of BIN_FRAMES intervals and gaps without events."""
+    from edr.representations import events_to_frames
+    from edr.tasks.dvs_transfer import _event_clip
+
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.integers(0, 1_400_000, 3000))
+    t = t[(t < 300_000) | (t > 700_000)]  # 12 frame intervals without an event
+    events = _events(t, *rng.integers(0, 32, (2, len(t))), rng.integers(0, 2, len(t)))
+    w = 33_333.25  # a frame interval of no whole µs (exact in binary: no window rounds)
+    whole = events_to_frames(
+        events, 32, 32, time_window=w, start_time=0, end_time=40 * w, dtype=np.float32
+    )  # (40, [OFF, ON], 32, 32)
+    for parts in (1, 7, 60):
+        clip = _event_clip(np.array_split(events, parts), 32, 32, w, frames=40, crop=32)
+        np.testing.assert_array_equal(clip.numpy(), whole[:, ::-1])  # [ON, OFF]
+    # 33,333.4 µs: a group's end rounded its last interval away (binned as the one before)
+    last = _event_clip([events], 32, 32, 33_333.4, frames=40, crop=32)[39]
+    assert float(last.sum()) == ((t >= 39 * 33_333.4) & (t < 40 * 33_333.4)).sum() > 0
+    first = _event_clip(np.array_split(events, 5), 32, 32, w, frames=3, crop=32, start_us=None)
+    assert float(first.sum()) == (t < t[0] + 3 * w).sum()
+
+
 # 6: a file's arrays are 1-d columns of one length (MVSEC's: (N, 4) rows), refused by name
 
 

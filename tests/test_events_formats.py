@@ -333,7 +333,7 @@ def test_a_clip_is_binned_from_its_recordings_first_event() -> None:
     events = _events(100, 128, 128)
     events["t"] = np.sort(events["t"] % 200_000) + 1_605_537_493_718_345  # DV's epoch time
     start = int(events["t"][0])
-    clip = _event_clip(events, 128, 128, 40_000.0, frames=4, crop=128, start_us=start)
+    clip = _event_clip([events], 128, 128, 40_000.0, frames=4, crop=128, start_us=start)
     assert float(clip.sum()) == (events["t"] < start + 160_000).sum() > 0
 
 

@@ -16,7 +16,7 @@ import pytest
 
 from edr import tables
 from edr.report import runs as runs_module
-from edr.report.recognition import table4_kth
+from edr.report.recognition import table2_ucf101, table4_kth
 from edr.report.render import to_markdown
 from edr.report.runs import load_runs
 from edr.store import folders
@@ -131,9 +131,34 @@ def test_a_record_that_cannot_count_is_listed_never_half_counted(tmp_path, monke
 def test_a_run_that_records_its_divergence_keeps_its_nan_accuracy(tmp_path) -> None:
     """By design (the learnable-EDR block counts diverged runs apart): not refused."""
     record = _record(0, float("nan"))
-    record["metrics"]["train/diverged_step"] = 12
-    _write(tmp_path / "a", record)
+    record["metrics"].update(
+        {"train/diverged_step": 12, "train/diverged_reason": "the loss is nan"}
+    )
+    _write(tmp_path / "a", record)  # its reason, text, was read as a number: 'unreadable'
     assert load_runs([tmp_path])["status"].tolist() == ["finished"]
+
+
+@pytest.mark.parametrize("task", ["kth", "ucf101"])
+def test_a_diverged_run_is_listed_under_tables_2_and_4_not_counted_as_a_run(tmp_path, task):
+    """issue 71: Tables 2 and 4 counted a run that diverged (accuracy NaN by design) in their
+    runs but left it out of the mean; it is listed below the table with its step instead."""
+    backbone = {"choices": {"backbone": "ltc", "representation": "edr", "ablation": "None"}}
+    fields = {"task": task, **(backbone if task == "ucf101" else {})}
+    diverged = _record(2, float("nan"), **fields)
+    diverged["metrics"].update(
+        {"train/diverged_step": 12, "train/diverged_reason": "the loss is nan"}
+    )
+    for name, record in (("a", _record(0, 0.4, **fields)), ("b", _record(1, 0.6, **fields)),
+                         ("c", diverged)):  # fmt: skip
+        _write(tmp_path / name, record)
+    found = load_runs([tmp_path])
+    table = table4_kth(found, {}) if task == "kth" else table2_ucf101(found, {}, None)
+    assert table.frame["Runs (seeds)"].tolist() == ["2 (0, 1)"]
+    assert table.frame["Accuracy (%)"].tolist() == ["50.0 ± 14.1"]
+    assert table.runs["seed"].tolist() == [0, 1]
+    (line,) = [line for line in to_markdown(table).splitlines() if "c/run.json" in line]
+    assert line.endswith("c/run.json`: not counted (diverged at step 12, the loss is nan: no "
+                         "eval/accuracy to average, so not counted as a run)")  # fmt: skip
 
 
 def test_two_folders_of_one_run_count_it_once(tmp_path) -> None:

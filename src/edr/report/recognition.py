@@ -188,7 +188,7 @@ def _accuracy_rows(
 
 def table4_kth(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
     done = labelled(finished(runs, "kth", without_ablations))
-    done, unplaced = placeable(done, ["choices.backbone", "choices.representation"])
+    done, unplaced = placeable(done, ["choices.backbone", "choices.representation"], ACCURACY)
     labels = ["data.label", "choices.backbone", "choices.representation", "input"]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = (
@@ -244,7 +244,7 @@ def table2_ucf101(
     runs: pd.DataFrame, published: dict[str, Any], speed: dict[str, Any] | None
 ) -> Table:
     done = labelled(finished(runs, "ucf101", without_ablations))
-    done, unplaced = placeable(done, ["choices.representation", "choices.backbone"])
+    done, unplaced = placeable(done, ["choices.representation", "choices.backbone"], ACCURACY)
     labels = ["data.label", "choices.representation", "input", "choices.backbone"]
     grouped = cells(done, [ACCURACY, "metrics.eval/chance"], labels)
     frame = pd.DataFrame()
@@ -325,7 +325,7 @@ def appendix_a_dvs(runs: pd.DataFrame, published: dict[str, Any]) -> Table:
         "metrics.pretrain/eval/accuracy",
         "metrics.eval/chance",
     ]
-    done, unplaced = placeable(done, ["choices.backbone", "data.events"])
+    done, unplaced = placeable(done, ["choices.backbone", "data.events"], ACCURACY)
     grouped = cells(done, metrics, ["choices.backbone", "data.events"])
     frame = pd.DataFrame()
     if not grouped.empty:

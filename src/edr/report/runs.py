@@ -11,7 +11,8 @@ records are listed, never averaged; so is every record that cannot be read (not 
 record, a wrong-typed field, larger than a record is, a file it names that is broken or lies
 outside its run folder), every run folder reached through a symbolic link, and every finished
 record that cannot count (:func:`uncountable`: no fingerprint or cell, a metric that is no
-finite measurement), each with the reason: a run is counted whole or listed, never half-counted.
+finite measurement; in a table that averages a metric, a run that diverged and so has none,
+:func:`placeable`), each with the reason: a run is counted whole or listed, never half-counted.
 """
 
 from __future__ import annotations
@@ -182,7 +183,8 @@ def uncountable(record: dict[str, Any]) -> str | None:
     """Why a finished ``record`` cannot count in a table, or None: no fingerprint or cell (no
     table could tell it from another run), an infinite metric, or a NaN ``eval/`` metric of a
     run that records no divergence (``train/diverged_step``); averaging it would count it as a
-    run and leave it out of the mean."""
+    run and leave it out of the mean. A run that records one is a result (the learnable-EDR
+    block counts it apart); a table that averages its NaN metric lists it (:func:`placeable`)."""
     for key in ("fingerprint", "cell"):
         if not record.get(key):
             return f"finished, but has no {key}: no table can tell it from another run"
@@ -196,9 +198,11 @@ def uncountable(record: dict[str, Any]) -> str | None:
 
 
 Scalar = int | float | bool | str | None
-# The metrics that are words (the run's settings as it ran them, the files of a figure); every
-# other metric is a number a table reads, and a float's range holds it.
-TEXT_METRICS = ("train/precision", "eval/network_mode", "eval/policy", "figure/")
+# The metrics that are words (the run's settings as it ran them, the files of a figure, why a
+# run or its pre-training diverged); every other metric is a number a table reads, and a float's
+# range holds it.
+TEXT_METRICS = ("train/precision", "eval/network_mode", "eval/policy", "figure/",
+                "train/diverged_reason", "pretrain/train/diverged_reason")  # fmt: skip
 
 
 def _not_numbers(metrics: dict[str, Any]) -> list[str]:
@@ -364,9 +368,35 @@ def displaced(runs: pd.DataFrame) -> list[str]:
     return lines
 
 
-def placeable(done: pd.DataFrame, labels: Sequence[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(the runs that have every one of a table's ``labels``, the others as ``not placed``
-    rows naming what they lack): a record from before a field existed gets no ``nan`` row."""
+def _diverged_reasons(done: pd.DataFrame, averaged: str) -> pd.Series:
+    """Per run of ``done``, why it cannot count in a mean of ``averaged`` (a ``metrics.``
+    column): it diverged (``train/diverged_step``), so it has no number for it by design; None
+    for the others."""
+    absent = pd.Series(float("nan"), index=done.index)
+    value = pd.to_numeric(done.get(averaged, absent), errors="coerce")
+    step = pd.to_numeric(done.get(f"metrics.{DIVERGED_AT}", absent), errors="coerce")
+    why = done.get("metrics.train/diverged_reason", absent)
+    name = averaged.removeprefix("metrics.")
+    return pd.Series(
+        [
+            f"diverged at step {s:,.0f}" + (f", {w}" if isinstance(w, str) else "")
+            + f": no {name} to average, so not counted as a run"
+            if pd.notna(s) and pd.isna(v) else None
+            for v, s, w in zip(value, step, why, strict=True)
+        ],
+        index=done.index,
+        dtype=object,
+    )  # fmt: skip
+
+
+def placeable(
+    done: pd.DataFrame, labels: Sequence[str], averaged: str | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(the runs that have every one of a table's ``labels`` and, where the table names the
+    metric its rows average (``averaged``), a number for it; the others as rows to list: ``not
+    placed`` naming what they lack (a record from before a field existed gets no ``nan`` row),
+    ``not counted`` for a run that diverged (counted as a run, it would be left out of the
+    mean: :func:`_diverged_reasons`))."""
     if done.empty:
         return done, done
     missing = done.reindex(columns=list(labels)).isna()
@@ -379,7 +409,14 @@ def placeable(done: pd.DataFrame, labels: Sequence[str]) -> tuple[pd.DataFrame, 
             for _, row in missing[lacking].iterrows()
         ],
     )
-    return done[~lacking], unplaced
+    placed = done[~lacking]
+    if averaged is None or placed.empty:
+        return placed, unplaced
+    reasons = _diverged_reasons(placed, averaged)
+    apart = reasons.notna()
+    uncounted = placed[apart].assign(status="not counted", error=reasons[apart])
+    listed = [part for part in (unplaced, uncounted) if not part.empty]
+    return placed[~apart], pd.concat(listed) if listed else unplaced
 
 
 def unfinished(runs: pd.DataFrame, task: str, unplaced: pd.DataFrame | None = None) -> pd.DataFrame:

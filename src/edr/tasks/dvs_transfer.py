@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import inspect
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +28,11 @@ from edr.checks.config import (
     OpenFraction,
     PositiveFloat,
     PositiveInt,
+    check_memory,
 )
 from edr.data.clips import VideoSource, resize_clip, take_frames
 from edr.data.datasets import VideoSet, resolve_root
-from edr.data.events import list_recordings, read_recording, sensor_of
+from edr.data.events import iter_recording, list_recordings, streamed_sensor
 from edr.data.fingerprint import files_fingerprint
 from edr.models.divergence import divergence
 from edr.representations import EDR, DVSSimulator, events_to_frames
@@ -53,32 +54,54 @@ def kth_settings(pretrain: Callable[..., Fitted]) -> dict[str, Any]:
     return {name: parameters[name].default for name in KTH_SETTINGS}
 
 
+def _bin_into(binned: np.ndarray, events: np.ndarray, begin: float, frame_us: float) -> None:
+    """Add the [OFF, ON] counts of ``events`` (all inside) into ``binned`` (n, 2, H, W), whose n
+    frame intervals of ``frame_us`` start at ``begin``."""
+    height, width = binned.shape[2:]
+    end = begin + (len(binned) + 1) * frame_us  # one interval past: rounding drops none of n
+    counts = events_to_frames(
+        events, height, width, time_window=frame_us, start_time=begin, end_time=end,
+        dtype=np.float32,
+    )  # fmt: skip
+    binned += counts[: len(binned)]
+
+
 def _event_clip(
-    events: np.ndarray,
+    chunks: Iterable[np.ndarray],
     height: int,
     width: int,
     frame_us: float,
     frames: int,
     crop: int,
-    start_us: int = 0,
+    start_us: int | None = 0,
 ) -> torch.Tensor:
-    """Events -> (frames, 2, crop, crop) float32: [ON, OFF] counts per frame interval from
-    ``start_us``. Only the first ``frames`` intervals are binned, a few at a time: memory is
-    the clip's, whatever the recording's length or sensor (a short one holds its last frame)."""
-    t = events["t"]
-    span = int(t[-1]) - start_us + 1 if len(events) else 1
+    """Events, a chunk at a time in time order -> (frames, 2, crop, crop) float32: [ON, OFF]
+    counts per frame interval from ``start_us`` (None: the first event's time). Only the first
+    ``frames`` intervals are binned, BIN_FRAMES at a time at the sensor's resolution, each
+    chunk added in as it comes: memory is a chunk's and the clip's, whatever the recording's
+    length, density or sensor (a short one holds its last frame)."""
+    parts: list[torch.Tensor] = []  # the groups of BIN_FRAMES intervals done, resized
+    binned = np.zeros((min(BIN_FRAMES, frames), 2, height, width), np.float32)  # the next
+    last = None  # the latest event's time
+    for chunk in (c for c in chunks if len(c)):
+        start_us = int(chunk["t"][0]) if start_us is None else start_us
+        last = int(chunk["t"][-1])
+        while len(chunk) and (first := len(parts) * BIN_FRAMES) < frames:
+            begin, end = start_us + first * frame_us, start_us + (first + len(binned)) * frame_us
+            t = chunk["t"]
+            cut = int(np.searchsorted(t, end))
+            if (early := int(np.searchsorted(t[:cut], begin))) < cut:  # none before start_us
+                _bin_into(binned, chunk[early:cut], begin, frame_us)
+            chunk = chunk[cut:]
+            if len(chunk):  # later intervals: this group is whole
+                parts.append(resize_clip(torch.from_numpy(binned[:, ::-1].copy()), crop))
+                count = min(BIN_FRAMES, frames - first - len(binned))
+                binned = np.zeros((max(count, 0), 2, height, width), np.float32)
+    span = 1 if last is None or start_us is None else last - start_us + 1
     n_bins = max(1, min(frames, int(np.ceil(span / frame_us))))
-    parts = []
-    for first in range(0, n_bins, BIN_FRAMES):
-        count = min(BIN_FRAMES, n_bins - first)
-        begin, end = start_us + first * frame_us, start_us + (first + count) * frame_us
-        inside = events[np.searchsorted(t, begin) : np.searchsorted(t, end)]
-        binned = events_to_frames(
-            inside, height, width, time_window=frame_us, start_time=begin, end_time=end,
-            dtype=np.float32,
-        )  # fmt: skip
-        part = torch.from_numpy(binned[:count, ::-1].copy())  # tonic's [OFF, ON] -> [ON, OFF]
-        parts.append(resize_clip(part, crop))
+    if len(parts) * BIN_FRAMES < n_bins:  # the group the last event is in, as far as it
+        kept = binned[: n_bins - len(parts) * BIN_FRAMES, ::-1]  # tonic's [OFF, ON] -> [ON, OFF]
+        parts.append(resize_clip(torch.from_numpy(kept.copy()), crop))
     return take_frames(torch.cat(parts), 0, frames)
 
 
@@ -147,11 +170,16 @@ def _recorded_clips(
     recordings = list_recordings(dvs_root, classes)
     fingerprint = files_fingerprint([p for p, _ in recordings], Path(dvs_root))
     clips, labels = [], []
+    duration = frames * sim.frame_us  # what is used: decoding stops there
     for path, label in tqdm(recordings, desc="reading recordings", unit="file"):
-        events = read_recording(path, duration_us=frames * sim.frame_us)  # what is used
-        h, w = sensor_of(path, events)
-        start = int(events["t"][0])
-        clips.append(_event_clip(events, h, w, sim.frame_us, frames, crop, start))
+        h, w = streamed_sensor(path, duration)
+        check_memory(
+            f"task.dvs_root={dvs_root}",
+            f"{path}'s frames binned {BIN_FRAMES} at a time at its {w}x{h} sensor",
+            2 * min(BIN_FRAMES, frames) * 2 * h * w * 4,  # the counts and one chunk's, float32
+        )  # fmt: skip
+        chunks = iter_recording(path, duration)  # bounded, however dense the recording
+        clips.append(_event_clip(chunks, h, w, sim.frame_us, frames, crop, start_us=None))
         labels.append(label)
     return clips, labels, fingerprint
 
@@ -169,7 +197,7 @@ def _simulated_clips(
     for video in tqdm(chosen, desc="simulating DVS", unit="video"):
         gray = np.asarray(frame_source(video.path))[:, 0]  # (T, H, W)
         h, w = gray.shape[1:]
-        clips.append(_event_clip(sim.simulate(gray), h, w, sim.frame_us, frames, crop))
+        clips.append(_event_clip([sim.simulate(gray)], h, w, sim.frame_us, frames, crop))
         labels.append(video.label)
     return clips, labels
 

@@ -21,6 +21,7 @@ from edr.data.events.recording import (
     read_recording,
     recording_sensor_size,
     sensor_of,
+    streamed_sensor,
     write_recording,
 )
 
@@ -35,6 +36,7 @@ __all__ = [
     "read_recording",
     "recording_sensor_size",
     "sensor_of",
+    "streamed_sensor",
     "write_aedat2",
     "write_recording",
 ]

@@ -235,6 +235,20 @@ def sensor_of(path: str | Path, events: np.ndarray) -> tuple[int, int]:
     return int(events["y"].max()) + 1, int(events["x"].max()) + 1
 
 
+def streamed_sensor(path: str | Path, duration_us: float | None = None) -> tuple[int, int]:
+    """(height, width): the sensor the file states, else the span of its events (of its first
+    ``duration_us`` only), read a chunk at a time: memory is a chunk's, however many events."""
+    path = Path(path)
+    if stated := recording_sensor_size(path):
+        return stated
+    bounding = [  # each chunk's events of the largest x and y
+        c[[int(c["x"].argmax()), int(c["y"].argmax())]]
+        for c in iter_recording(path, duration_us)
+        if len(c)
+    ]
+    return sensor_of(path, joined(bounding) if bounding else np.zeros(0, EVENT_DTYPE))
+
+
 def check_writable(path: str | Path, sensor: tuple[int, int]) -> str:
     """The format a ``path``'s suffix picks, once it is known to hold a ``sensor`` = (height,
     width): what :func:`write_recording` refuses for the suffix, the sensor and what stands at
