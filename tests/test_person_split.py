@@ -201,3 +201,27 @@ def test_every_real_person_held_out_once_keeps_each_video_once(compose_config, t
     assert all(len(e["items"]) == 4 and len(e["soft_vote"]) == 3 for e in pooled)
     assert {e["scenario"] for e in pooled if e["true"] == "boxing"} == {"d1", "d3", "d4"}
     assert metrics["eval/video_accuracy"] == np.mean([e["predicted"] == e["true"] for e in pooled])
+
+
+def test_a_fold_that_diverged_is_pooled_as_the_run_diverged_whichever_fold_it_was() -> None:
+    """A fold's ``train/diverged_*`` reaches the pooled record (the tables list it as diverged)
+    whether the first fold diverged or a later one; numbers every fold holds are averaged."""
+    from edr.tasks.recognition import fold_means
+
+    calm = {"train/loss": 1.0, "eval/accuracy": 0.5, "data/scale": "demo"}
+    wild = {
+        "train/loss": 3.0,
+        "eval/accuracy": float("nan"),
+        "data/scale": "demo",
+        "train/diverged_step": 7,
+        "train/diverged_epoch": 1,
+        "train/diverged_reason": "nan loss",
+    }
+    for folds, at in (([wild, calm], 0), ([calm, calm, wild], 2)):
+        pooled = fold_means(folds)
+        assert pooled["train/diverged_step"] == 7 and pooled["train/diverged_fold"] == at
+        assert pooled["train/diverged_reason"] == "nan loss" and pooled["data/scale"] == "demo"
+        assert pooled["train/loss"] == pytest.approx(
+            sum(f["train/loss"] for f in folds) / len(folds)
+        )
+    assert "train/diverged_step" not in fold_means([calm, calm])

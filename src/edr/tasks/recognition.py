@@ -593,6 +593,28 @@ def train_recognition(**settings: Any) -> dict[str, Any]:
     return _cross_validated(_fold_count(settings), settings)
 
 
+def fold_means(fitted: list[dict[str, Any]]) -> dict[str, Any]:
+    """The folds' metrics as one run's: a number every fold holds averaged over the folds, any
+    other value as the first fold holds it, and where a fold diverged, the first diverged fold's
+    ``train/diverged_*`` (its step counted within that fold) with ``train/diverged_fold``."""
+
+    def number(value: Any) -> bool:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+
+    shared = {k for k in fitted[0] if all(number(f.get(k)) for f in fitted)}
+    diverged = next((k for k, f in enumerate(fitted) if "train/diverged_step" in f), None)
+    merged = {k: v for k, v in fitted[0].items() if not k.startswith("train/diverged")}
+    merged |= {
+        k: float(np.mean([f[k] for f in fitted]))
+        for k in shared
+        if not k.startswith("train/diverged")
+    }
+    if diverged is not None:
+        merged |= {k: v for k, v in fitted[diverged].items() if k.startswith("train/diverged")}
+        merged["train/diverged_fold"] = diverged
+    return merged
+
+
 def _fold_count(settings: dict[str, Any]) -> int:
     """How many folds a split by person has: ``task.videos.folds``, or with ``persons`` the
     number of persons in the videos (listed, not decoded)."""
@@ -634,15 +656,11 @@ def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
                                             "matrix": matrix.tolist()})  # fmt: skip
     save_confusion(matrix, classes, out_dir / "confusion.png")
     write_predictions(out_dir / PREDICTIONS, classes, videos)
-    numeric = {
-        k for k, v in fitted[0].items() if isinstance(v, int | float) and not isinstance(v, bool)
-    }
     pooled = float(matrix.trace() / matrix.sum())
     if any(np.isnan(f["eval/accuracy"]) for f in fitted):  # a fold diverged: no pooled accuracy
         pooled = float("nan")
     return {
-        **fitted[0],
-        **{k: float(np.mean([f[k] for f in fitted])) for k in numeric},
+        **fold_means(fitted),
         "data/test_videos": sum(f["data/test_videos"] for f in fitted),
         "data/test_clips": sum(f["data/test_clips"] for f in fitted),
         "data/folds": folds,
