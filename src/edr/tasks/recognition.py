@@ -12,12 +12,13 @@ from __future__ import annotations
 import functools
 import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
+from hydra.utils import instantiate
 from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
@@ -44,7 +45,7 @@ from edr.data.clips import (
     PrecomputedSource,
     VideoSource,
 )
-from edr.data.datasets import Video, VideoSet, resolve_root, videos_fingerprint
+from edr.data.datasets import Video, VideoSet, folds_problem, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
 from edr.models.divergence import divergence
@@ -591,6 +592,30 @@ def train_recognition(**settings: Any) -> dict[str, Any]:
     if keywords.get("protocol") != "person_folds":
         return fit_recognition(**settings).metrics
     return _cross_validated(_fold_count(settings), settings)
+
+
+def _person_folds_problem(values: Mapping[str, Any]) -> str | None:
+    """A split by person into more folds than the videos have persons, said before the run's
+    record is written (the data set says it only once the run builds its data): the persons
+    under ``data_root`` as the data set counts them, from the file names it lists (nothing
+    decoded; its own one line, naming the folder, passes through), or those a generated set
+    would hold, its ``synthetic.persons`` (nothing generated)."""
+    videos = values.get("videos")
+    if not isinstance(videos, Mapping) or videos.get("protocol") != "person_folds":
+        return None
+    folds = videos.get("folds", 2)
+    if folds == "persons":
+        return None
+    if values.get("data_root"):
+        instantiate(videos)(Path(values["data_root"]), train=False, fold=0)
+        return None
+    persons = (values.get("synthetic") or {}).get("persons")
+    whose = f"the persons task.synthetic.persons={persons} generates"
+    return folds_problem(folds, persons, whose) if isinstance(persons, int) else None
+
+
+# What edr-run checks before any work (edr.checks.config.check_together)
+train_recognition.settings_problem = _person_folds_problem  # type: ignore[attr-defined]
 
 
 def _fold_count(settings: dict[str, Any]) -> int:
