@@ -625,6 +625,16 @@ def train_recognition(**settings: Any) -> dict[str, Any]:
     return _cross_validated(_fold_count(settings), settings)
 
 
+def _fold_count(settings: dict[str, Any]) -> int:
+    """How many folds a split by person has: ``task.videos.folds``, or with ``persons`` the
+    number of persons in the videos (listed, not decoded)."""
+    folds = settings["videos"].keywords.get("folds", 2)
+    if folds != "persons":
+        return folds
+    root = resolve_root(settings.get("data_root"), settings["synthetic"], settings["cache_dir"])
+    return settings["videos"](root, train=False, fold=0).person_fold[1]
+
+
 def _person_folds_problem(values: Mapping[str, Any]) -> str | None:
     """A split by person into more folds than the videos have persons, said before the run's
     record is written (the data set says it only once the run builds its data): the persons
@@ -647,16 +657,6 @@ def _person_folds_problem(values: Mapping[str, Any]) -> str | None:
 
 # What edr-run checks before any work (edr.checks.config.check_together)
 train_recognition.settings_problem = _person_folds_problem  # type: ignore[attr-defined]
-
-
-def _fold_count(settings: dict[str, Any]) -> int:
-    """How many folds a split by person has: ``task.videos.folds``, or with ``persons`` the
-    number of persons in the videos (listed, not decoded)."""
-    folds = settings["videos"].keywords.get("folds", 2)
-    if folds != "persons":
-        return folds
-    root = resolve_root(settings.get("data_root"), settings["synthetic"], settings["cache_dir"])
-    return settings["videos"](root, train=False, fold=0).person_fold[1]
 
 
 def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
