@@ -65,6 +65,11 @@ ISSUE_OVERRIDES = {
         (*ATARI, "task.env.env_id=NoSuch-v0", "task.env.preset=none"),
         "task.env.env_id='NoSuch-v0': expected a gymnasium env id registered here",
     ),
+    "a gymnasium env without frames": (
+        (*ATARI, "task.env.env_id=CartPole-v1", "task.env.preset=none"),
+        "task.env.env_id='CartPole-v1': expected an env of RGB image observations (H, W, 3) "
+        "uint8, as task.env.preset=none plays; it observes Box(4,) float32",
+    ),
     "an unset environment variable": ((*KTH, "threads=${oc.env:UNSET}"), "variable UNSET"),
     "the task deleted": ((*KTH, "~task"), "~task: a run needs its task"),
     "eps that erases every event": (
@@ -95,6 +100,23 @@ NEW_OVERRIDES = {
     "an ALE id that does not exist": (
         (*ATARI, "task.env.env_id=ALE/NoSuch-v5", "task.env.preset=none"),
         "env_id='ALE/NoSuch-v5'",
+    ),
+    "an env of continuous actions without frames": (
+        (*ATARI, "task.env.env_id=Pendulum-v1", "task.env.preset=none"),
+        "it observes Box(3,) float32",
+    ),
+    "a board game's cell for frames": (
+        (*ATARI, "task.env.env_id=FrozenLake-v1", "task.env.preset=none"),
+        "it observes Discrete() int64",
+    ),
+    "an own env its module does not register": (
+        (
+            *ATARI,
+            "task.env.env_id=NoSuch-v0",
+            "task.env.env_module=edr.rl.games",
+            "task.env.preset=none",
+        ),
+        "env_id='NoSuch-v0': expected an env gymnasium can make",
     ),
     "an unset variable in a seed": ((*KTH, "seed=${oc.env:EDR_NO_SUCH_SEED}"), "EDR_NO_SUCH_SEED"),
     "an interpolation of no key": ((*KTH, "task.epochs=${no.such.key}"), "task.epochs=${no.such"),
@@ -246,8 +268,61 @@ def test_arrays_that_fit_alone_but_not_together_are_refused(monkeypatch) -> None
         check_allocations(parts)
 
 
-# ---- values only a run's data or env shows, refused before training ------------------------
-def test_more_folds_than_persons_is_refused_before_training(tmp_path) -> None:
+# ---- values only a run's data or env shows, refused before its record -----------------------
+@pytest.fixture(scope="module")
+def three_persons(tmp_path_factory) -> Path:
+    """KTH's layout, 3 persons of 1 scenario, 4 tiny frames a video."""
+    root = tmp_path_factory.mktemp("data") / "KTH"
+    return write_synthetic_kth(root, persons=3, scenarios=1, frames=4, height=24, width=32)
+
+
+def _person_folds(root: Path | None) -> tuple[str, ...]:
+    """``experiment=kth_person task.videos.folds=100`` on ``root`` (None: generated data)."""
+    if root is None:
+        return (*KTH, "task.videos.protocol=person_folds", "task.videos.folds=100")
+    return ("experiment=kth_person", "task.videos.folds=100", f"task.data_root={root}",
+            "task.videos.sequences=null")  # fmt: skip
+
+
+FOLDS_SAID = {
+    "data": "task.videos.folds=100: expected at most 3, the persons whose videos are under ",
+    "generated": "task.videos.folds=100: expected at most 4, the persons task.synthetic.persons=4 "
+    "generates: each fold tests persons of its own (or folds=persons)",
+}
+
+
+@pytest.mark.parametrize("data", FOLDS_SAID)
+def test_more_folds_than_persons_is_one_line_before_any_folder(
+    data, three_persons, tmp_path, monkeypatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    root = three_persons if data == "data" else None
+    said = _refused(*_person_folds(root), f"paths.results={tmp_path / 'results'}")
+    assert said.startswith(FOLDS_SAID[data]), said
+    assert not any(tmp_path.iterdir())  # no run folder, no log
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [_person_folds(None), "data", (*ATARI, "task.env.env_id=CartPole-v1", "task.env.preset=none")],
+    ids=["folds, generated data", "folds, a data root", "a gymnasium env without frames"],
+)
+def test_a_run_refuses_them_before_its_record(argv, three_persons, tmp_path) -> None:
+    """The same check in the run itself (the path a sweep's jobs take, and a run called from
+    Python): refused before its folder is made, so no record says ``failed`` for it."""
+    from conftest import _compose
+    from edr.run import run
+
+    argv = _person_folds(three_persons) if argv == "data" else argv
+    out = tmp_path / "run"
+    cfg = _compose(*argv, f"out_dir={out}", f"paths.results={tmp_path / 'results'}")
+    with pytest.raises(ConfigError) as refused:
+        run(cfg)
+    assert "\n" not in str(refused.value)
+    assert not out.exists() and not any(tmp_path.iterdir())
+
+
+def test_more_folds_than_persons_is_refused_by_the_data_set_too(tmp_path) -> None:
     root = write_synthetic_kth(
         tmp_path / "KTH", persons=3, scenarios=1, frames=4, height=24, width=32
     )

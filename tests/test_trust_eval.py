@@ -3,7 +3,8 @@ folder is checked before anything reads or writes it, each class of bad folder i
 naming the file, what is wrong and a remedy edr-eval accepts, before any env is built, with
 the folder byte for byte as it was; scores go beside the run's, in a file named for the
 evaluation; the same seed gives the same scores. And a stopped run's record says
-``interrupted``, an Atari record's config holds the groups its task uses."""
+``interrupted``, an Atari record's config holds the groups its task uses. edr-run resuming a
+stopped run checks its record and checkpoint the same way, before it rewrites the record."""
 
 from __future__ import annotations
 
@@ -246,3 +247,108 @@ def test_stopped_runs_read_as_interrupted_old_and_new(tmp_path) -> None:
             row["error"] == "stopped by Ctrl-C or SIGTERM: running it again resumes from "
             "env_steps 20"
         )
+
+
+# ---- edr-run resuming a stopped run: the same checks, before its record is rewritten ---------
+def _stopped(folder: Path, cfg: Any) -> None:
+    """``folder``'s record says interrupted, beside the checkpoint train_paac would have left
+    (its finished run dropped its own): its network's weights, fresh optimizer and schedule."""
+    from hydra.utils import instantiate
+
+    from edr.rl.learner import Learner
+    from edr.rl.phases import PhaseClock
+    from edr.store.checkpoints import save_checkpoint
+
+    task = instantiate(cfg.task).keywords
+    saved = torch.load(folder / "network.pt", weights_only=True)
+    network = PAACNetwork(**{k: v for k, v in saved["arguments"].items() if k != "precision"})
+    network.load_state_dict(saved["state_dict"])
+    record = json.loads((folder / "run.json").read_text())
+    learner = Learner(network, task["loss"], task["optim"], 20, PhaseClock())
+    save_checkpoint(folder / "checkpoint.pt", learner.parts, env_steps=20, history=[],
+                    precision="float32", data_fingerprint=record["data"]["fingerprint"])  # fmt: skip
+    _tamper(folder, lambda r: r.update(status="interrupted"))
+
+
+def _resume_refused(folder: Path) -> str:
+    """``edr-run`` of the folder's own config, resuming it: refused in one line advising an
+    edr-run option, the folder byte for byte as it was; the line."""
+    from conftest import _compose
+    from edr.checks.config import ConfigError
+    from edr.store.checkpoints import UnreadableCheckpoint
+
+    before = _files(folder)
+    with pytest.raises((ConfigError, UnreadableCheckpoint)) as refused:
+        run(_compose(*TINY, f"out_dir={folder}"))
+    line = str(refused.value)
+    assert "\n" not in line and "resume=false" in line, line
+    assert _files(folder) == before
+    return line
+
+
+def test_the_check_takes_the_checkpoint_train_paac_writes(trained, folder) -> None:
+    """(A whole resume through the check: test_atari's tiny Pong run, stopped and resumed.)"""
+    from hydra.utils import instantiate
+
+    _stopped(folder, trained[1])
+    atari.check_resumable(folder, **instantiate(trained[1].task).keywords)
+
+
+def _without(key: str):
+    """A checkpoint's payload without ``key``."""
+    return lambda state: {k: v for k, v in state.items() if k != key}
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda state: torch.zeros(3), "checkpoint.pt holds Tensor, not what edr-run writes"),
+        (_without("history"), "checkpoint.pt: 'history' is missing, expected list"),
+        (lambda state: {**state, "network": {"w": torch.zeros(2)}},
+         "checkpoint.pt holds the weights of another network than its run.json describes"),
+        (lambda state: {**state, "network": {**state["network"], "normalise.weight": torch.ones(5)}},
+         "checkpoint.pt: normalise.weight is (5,), where the network its run.json describes"),
+        (lambda state: {"x": _Foreign()}, "checkpoint.pt cannot be read (it holds Python objects"),
+    ],
+    ids=["a bare tensor", "no history", "another network's keys",
+         "the other input's first layer", "a pickled object"],
+)  # fmt: skip
+def test_a_foreign_checkpoint_is_refused_before_the_run_resumes(change, said, trained, folder):
+    _stopped(folder, trained[1])
+    state = torch.load(folder / "checkpoint.pt", weights_only=True)
+    torch.save(change(state), folder / "checkpoint.pt")
+    line = _resume_refused(folder)
+    assert said in line and str(folder / "checkpoint.pt") in line, line
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda r: r.update(status="done"), "run.json: status='done': expected one of"),
+        (lambda r: r.update(seed="zero"), "run.json: seed='zero': expected an integer"),
+        (lambda r: r.update(attempt="x"), "run.json: attempt='x': expected an integer"),
+    ],
+    ids=["status", "seed", "attempt"],
+)  # fmt: skip
+def test_a_tampered_record_is_refused_before_the_run_resumes(
+    change, said, trained, folder, no_env
+) -> None:
+    _stopped(folder, trained[1])
+    _tamper(folder, change)
+    assert said in _resume_refused(folder)
+
+
+def test_a_folder_a_live_run_holds_is_not_resumed(trained, folder, no_env) -> None:
+    from conftest import _compose
+    from edr.checks.config import ConfigError
+
+    _stopped(folder, trained[1])
+    holder = {"host": socket.gethostname(), "pid": os.getpid(),
+              "process": process_identity(os.getpid())}  # fmt: skip
+    (folder / LOCK).write_text(json.dumps(holder))
+    before = _files(folder)
+    with pytest.raises(ConfigError) as refused:
+        run(_compose(*TINY, f"out_dir={folder}"))
+    said = str(refused.value)
+    assert f"is held by process {os.getpid()}" in said and f"({folder / LOCK}): wait" in said
+    assert _files(folder) == before

@@ -35,6 +35,7 @@ from edr.checks.config import ConfigError, Seed, Threads, check_config, path_pro
 from edr.report.published import load_published, lookup
 from edr.store.atomic import remove_partial_files
 from edr.store.checkpoints import (
+    START_OVER,
     UnreadableCheckpoint,
     WriteStopped,
     drop_checkpoint,
@@ -53,6 +54,7 @@ from edr.store.folders import (
 from edr.store.identity import job_dirname, run_identity, warn_ignored, with_root_symbols
 from edr.store.records import (
     INTERRUPTED,
+    RECORD_NAME,
     UnreadableRecord,
     check_flat,
     git_revision,
@@ -144,6 +146,8 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     arguments: dict[str, Any] = {"out_dir": out_dir, "seed": cfg.seed}
     if "resume" in inspect.signature(target).parameters:
         arguments["resume"] = plan.action == "resume"
+    if plan.action == "resume":
+        _check_resumable(out_dir, plan.record or {}, target, task)
     if plan.extended:
         log.info("%s: extending it from its checkpoint (%s)", out_dir, "; ".join(plan.extended))
     elif plan.action == "resume":
@@ -212,6 +216,18 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         )  # the record says finished: network.pt is enough
         log.info("%s", summary_line(record, out_dir))
     return record["metrics"]
+
+
+def _check_resumable(out_dir: Path, record: dict[str, Any], target: Any, task: Any) -> None:
+    """What a resumed run continues from, checked before its record is rewritten, as edr-eval
+    checks a folder (:mod:`edr.tasks.run_folder`): the record's status and fields as edr-run
+    writes them, and where the task says how (its ``check_resumable``: Atari's checkpoint
+    against its network), the checkpoint; one line naming the file, the folder as it was."""
+    from edr.tasks.run_folder import check_record_fields  # numba's kernels: for a resume only
+
+    check_record_fields(out_dir / RECORD_NAME, record, START_OVER)
+    if (check := getattr(target, "check_resumable", None)) is not None:
+        check(out_dir, **task.keywords)
 
 
 def headline(metrics: dict[str, Any]) -> str:

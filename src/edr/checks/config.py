@@ -455,8 +455,10 @@ def check_node(node: DictConfig, where: str) -> None:
 
 def check_together(target: Any, node: Mapping[str, Any], where: str) -> None:
     """What no single value shows, where ``target`` can say: its ``settings_problem(values)``
-    (a static method) is given the node's values over the target's defaults and returns
-    ``key=value: expected ...`` or None; one line naming ``where``, before anything is built."""
+    (a static method, or a function's attribute) is given the node's values over the target's
+    defaults and returns ``key=value: expected ...`` or None; one line naming ``where``, before
+    anything is built. A data set's own :class:`ConfigError`, raised where it lists its files,
+    passes through as it is (its line names the folder)."""
     settings_problem = getattr(target, "settings_problem", None)
     if settings_problem is None:
         return

@@ -361,11 +361,8 @@ def kth(
         return VideoSet(tuple(videos), actions, index, time_split=TimeSplit(train, train_fraction))
     if protocol == "person_folds":
         persons = len({v.group for v in videos})
-        if folds != "persons" and folds > persons:  # a fold without a person would test nothing
-            raise ConfigError(
-                f"task.videos.folds={folds}: expected at most {persons}, the persons whose videos "
-                f"are under {root}: each fold tests persons of its own (or folds=persons)"
-            )
+        if problem := folds_problem(folds, persons, f"the persons whose videos are under {root}"):
+            raise ConfigError(f"task.{problem}")
         if folds == "persons":  # leave one person out: a fold per person, in sorted order
             dealt = {p: k for k, p in enumerate(sorted({v.group for v in videos}))}
         else:
@@ -443,6 +440,18 @@ def read_kth_sequences(path: Path) -> dict[str, tuple[tuple[int, int], ...]]:
             f"{path}: no line of KTH's form 'person01_boxing_d1  frames  1-95, ...'"
         )
     return table
+
+
+def folds_problem(folds: int | str, persons: int, whose: str) -> str | None:
+    """``videos.folds=<n>: expected ...`` where a split by person into ``folds`` folds would leave
+    a fold without a person, which would test nothing (``persons`` of them, ``whose``: where
+    they come from); None where it would not."""
+    if folds == "persons" or folds <= persons:
+        return None
+    return (
+        f"videos.folds={folds}: expected at most {persons}, {whose}: each fold tests persons of "
+        "its own (or folds=persons)"
+    )
 
 
 def person_folds(videos: Sequence[Video], folds: int) -> dict[str, int]:

@@ -140,11 +140,16 @@ def rom_fingerprint(game: str) -> str:
     )
 
 
-def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
-    """A user's gymnasium env (registered by importing ``module``) with 84x84 RGB frames."""
+def _make_own(env_id: str, module: str | None) -> gym.Env:
+    """The user's gymnasium env ``env_id``, registered by importing ``module``."""
     if module is not None:
         importlib.import_module(module)
-    env = gym.make(env_id)
+    return gym.make(env_id)
+
+
+def _spaces_problem(env: gym.Env) -> str | None:
+    """What PAAC cannot play in a user's ``env`` (as ``expected ...`` ends): observations that
+    are no RGB frames, actions that are not discrete; None where it can play it."""
     space = env.observation_space
     if not (
         isinstance(space, gym.spaces.Box)
@@ -152,19 +157,39 @@ def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
         and len(space.shape) == 3
         and space.shape[-1] == 3
     ):
-        env.close()
-        raise ConfigError(
-            f"task.env.env_id={env_id}: expected an env of RGB image observations (H, W, 3) uint8, as "
-            f"task.env.preset=none plays; it observes {_space_text(space)}: give an env with frames, or "
-            "task.env.game=<an ALE game> with preset paac"
+        return (
+            f"an env of RGB image observations (H, W, 3) uint8, as task.env.preset=none plays; it "
+            f"observes {_space_text(space)}: give an env with frames, or task.env.game=<an ALE "
+            "game> with preset paac"
         )
     if not isinstance(env.action_space, gym.spaces.Discrete):
-        env.close()
-        raise ConfigError(
-            f"task.env.env_id={env_id}: expected an env of discrete actions, as PAAC takes; it "
-            f"acts in {_space_text(env.action_space)}"
+        return (
+            f"an env of discrete actions, as PAAC takes; it acts in {_space_text(env.action_space)}"
         )
-    if space.shape[:2] != (SCREEN, SCREEN):
+    return None
+
+
+def own_env_problem(env_id: str, module: str | None = None) -> str | None:
+    """What stops PAAC playing the user's env ``env_id`` (registered by importing ``module``),
+    read from the spaces of one env made and closed at once (only a made env says them): for
+    the checks before a run, which then refuse it before its folder is touched."""
+    try:
+        env = _make_own(env_id, module)
+    except gym.error.Error as error:  # an id the module does not register, a missing extra
+        return f"an env gymnasium can make ({' '.join(str(error).split())})"
+    try:
+        return _spaces_problem(env)
+    finally:
+        env.close()
+
+
+def gym_image_env(env_id: str, module: str | None = None) -> gym.Env:
+    """A user's gymnasium env (registered by importing ``module``) with 84x84 RGB frames."""
+    env = _make_own(env_id, module)
+    if problem := _spaces_problem(env):
+        env.close()
+        raise ConfigError(f"task.env.env_id={env_id}: expected {problem}")
+    if env.observation_space.shape[:2] != (SCREEN, SCREEN):
         env = gym.wrappers.ResizeObservation(env, (SCREEN, SCREEN))
     return env
 

@@ -21,7 +21,7 @@ from edr.checks.config import (
 from edr.models.paac import Core, Init, InputNorm
 from edr.models.precision import PrecisionChoice
 from edr.representations import EDR
-from edr.rl.envs import AtariGame, Backend, Preset, gym_id_problem
+from edr.rl.envs import AtariGame, Backend, Preset, gym_id_problem, own_env_problem
 from edr.rl.loss import Advantage
 from edr.rl.optim import OptimizerName
 
@@ -50,12 +50,16 @@ class EnvSettings:
 
     @staticmethod
     def settings_problem(values: Mapping[str, Any]) -> str | None:
-        """A user's env id that gymnasium's registry lacks (where no ``env_module`` registers
-        it on import, which the check does not run), said before any env is made."""
-        env_id = values.get("env_id")
-        if not isinstance(env_id, str) or values.get("env_module"):
+        """A user's env id said before any run folder is touched: one gymnasium's registry
+        lacks (where no ``env_module`` registers it on import), or, with ``preset=none``, one
+        whose spaces PAAC cannot play (an env made and closed: only own-env runs pay for it,
+        and their module is imported, as the run would)."""
+        env_id, module = values.get("env_id"), values.get("env_module")
+        if not isinstance(env_id, str):
             return None
-        problem = gym_id_problem(env_id)
+        problem = None if module else gym_id_problem(env_id)
+        if problem is None and values.get("preset") == "none":
+            problem = own_env_problem(env_id, module)
         return f"env_id={env_id!r}: expected {problem}" if problem else None
 
     @property

@@ -51,6 +51,7 @@ from edr.store.checkpoints import (
     CHECKPOINT,
     DATA_FINGERPRINT,
     NETWORK,
+    START_OVER,
     check_same_data,
     load_checkpoint,
     restore,
@@ -59,7 +60,13 @@ from edr.store.checkpoints import (
 )
 from edr.tasks.plots import save_score_curve
 from edr.tasks.rebuild import instantiate_from_record
-from edr.tasks.run_folder import RunFolder, check_weights, open_run_folder, payload_part
+from edr.tasks.run_folder import (
+    Reader,
+    RunFolder,
+    check_weights,
+    open_run_folder,
+    payload_part,
+)
 from edr.tasks.scalars import LoggerName, open_logger
 
 # a row per log_every updates: env steps, losses, fps, training score; gzip-compressed JSON,
@@ -156,6 +163,31 @@ def train_paac(
         **evaluated,
         **diverged,
     }
+
+
+# What a checkpoint of train_paac holds that a resume reads (the learner's parts, the counters).
+CHECKPOINT_PARTS = {"network": dict, "optimizer": dict, "schedule": dict, "rng": dict,
+                    "env_steps": int, "history": list}  # fmt: skip
+
+
+def check_resumable(
+    out_dir: Path, *, env: EnvSettings = EnvSettings(),
+    network: NetworkSettings = NetworkSettings(), **_: Any,
+) -> None:  # fmt: skip
+    """The checkpoint a resumed run would continue from, checked before edr-run rewrites the
+    run's record, as edr-eval checks a file it scores (:mod:`edr.tasks.run_folder`): readable,
+    holding what train_paac writes, its network's keys and shapes those of the network ``env``
+    and ``network`` describe (one probe env is made). One line naming the file otherwise, with
+    edr-run's remedy; the folder stays as it was."""
+    path = out_dir / CHECKPOINT
+    state = load_checkpoint(path)
+    for key, kind in CHECKPOINT_PARTS.items():
+        payload_part(path, state, key, kind, START_OVER)
+    fresh, _, _ = _network(_env_kwargs(env), network, env.frame_stack)
+    check_weights(path, state["network"], fresh.state_dict(), START_OVER)
+
+
+train_paac.check_resumable = check_resumable  # type: ignore[attr-defined]  # edr-run calls it
 
 
 def _training_metrics(
@@ -526,23 +558,28 @@ def evaluation_file(source: Path, seed: int, plays: int) -> Path:
 
 
 # What edr-eval's refusals of a record or checkpoint advise (never an edr-run option).
-EVAL_REMEDY = "score a run folder edr-run wrote, or a copy of it whose files are whole"
+EDR_EVAL = Reader(
+    name="edr-eval", verb="score", tasks=("atari",),
+    elsewhere="a recognition run's test accuracy is in its run.json, its model in model.pt",
+    remedy="score a run folder edr-run wrote, or a copy of it whose files are whole",
+)  # fmt: skip
 
 
 def _scored_weights(folder: RunFolder, source: Path, network: PAACNetwork) -> dict[str, Any]:
     """``source``'s weights loaded into ``network`` (refused in one line unless they are the
     network's keys and shapes) and its precision set; the env steps the weights had trained
     (a checkpoint's own count, else the record's)."""
-    state = load_checkpoint(source, remedy=EVAL_REMEDY)
+    state = load_checkpoint(source, remedy=EDR_EVAL.remedy)
+    part = functools.partial(payload_part, source, state, remedy=EDR_EVAL.file_remedy)
     if source.name == CHECKPOINT:
-        weights = payload_part(source, state, "network", dict)
-        steps, precision = payload_part(source, state, "env_steps", int), state.get("precision")
+        weights = part("network", dict)
+        steps, precision = part("env_steps", int), state.get("precision")
     else:
-        weights = payload_part(source, state, "state_dict", dict)
-        precision = payload_part(source, state, "arguments", dict).get("precision")
+        weights = part("state_dict", dict)
+        precision = part("arguments", dict).get("precision")
         metrics = folder.record.get("metrics")
         steps = metrics.get("train/env_steps") if isinstance(metrics, dict) else None
-    check_weights(source, weights, network.state_dict())
+    check_weights(source, weights, network.state_dict(), EDR_EVAL.file_remedy)
     network.load_state_dict(weights)
     # runs from before the precision setting trained in float32
     network.precision = precision if precision in ("float32", "bfloat16") else "float32"
@@ -570,8 +607,7 @@ def evaluate_checkpoint(
     a module it names (``task.env.env_module``, or gymnasium's ``module:Env-v0`` in an env id)
     is imported only with ``trust_env_module``.
     """
-    folder = open_run_folder(Path(run_dir), reader="edr-eval", task="atari", remedy=EVAL_REMEDY,
-                             trust_env_module=trust_env_module)  # fmt: skip
+    folder = open_run_folder(Path(run_dir), EDR_EVAL, trust_env_module=trust_env_module)
     source = _scored_file(folder)
     # train_paac's arguments, EDR built
     task = instantiate_from_record(folder.task, "config.task").keywords

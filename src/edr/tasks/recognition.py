@@ -12,12 +12,13 @@ from __future__ import annotations
 import functools
 import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import torch
+from hydra.utils import instantiate
 from torch import nn
 from torch.utils.data import DataLoader, RandomSampler
 from tqdm import tqdm
@@ -44,7 +45,7 @@ from edr.data.clips import (
     PrecomputedSource,
     VideoSource,
 )
-from edr.data.datasets import Video, VideoSet, resolve_root, videos_fingerprint
+from edr.data.datasets import Video, VideoSet, folds_problem, resolve_root, videos_fingerprint
 from edr.models import RecognitionModel, activation_sparsity, input_norm
 from edr.models.dead_units import DeadUnits
 from edr.models.divergence import divergence
@@ -60,7 +61,7 @@ from edr.store.checkpoints import (
     save_atomic,
     save_checkpoint,
 )
-from edr.store.records import RECORD_NAME, read_record
+from edr.store.records import RECORD_NAME
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion, save_learning_curve
 from edr.tasks.predictions import (
@@ -70,6 +71,14 @@ from edr.tasks.predictions import (
     write_predictions,
 )
 from edr.tasks.rebuild import instantiate_from_record
+from edr.tasks.run_folder import (
+    Reader,
+    RefusedFolder,
+    check_weights,
+    config_node,
+    open_record,
+    payload_part,
+)
 from edr.tasks.scalars import LoggerName, open_logger
 from edr.tasks.seeds import seed_everything
 
@@ -115,22 +124,45 @@ def evaluate(
     return Tested(np.concatenate(scores), np.concatenate(true))
 
 
+# Who loads a recognition run's model, for what its refusals say (edr.tasks.run_folder).
+LOADER = Reader(
+    name="load_model", verb="load", tasks=("kth", "ucf101"),
+    elsewhere="load an Atari run's network with edr.tasks.atari.load_network, or score it with "
+    "edr-eval",
+    remedy="load a run folder edr-run wrote, or a copy of it whose files are whole",
+)  # fmt: skip
+
+
 def load_model(run_dir: str | Path) -> RecognitionModel:
-    """The model a recognition run trained, rebuilt from its record's config and ``model.pt``;
-    the config builds only the suite's own parts (:mod:`edr.tasks.rebuild`)."""
+    """The model a recognition run trained, rebuilt from its record's config and ``model.pt``.
+    The folder is checked first, as edr-eval checks the folder it scores
+    (:mod:`edr.tasks.run_folder`): no live run holds it, its record is a recognition run's
+    as edr-run writes it, the config builds only the suite's own parts
+    (:mod:`edr.tasks.rebuild`), and ``model.pt`` holds what edr-run writes, the weights of the
+    model it rebuilds. Each refusal is one line naming the file; nothing is written."""
     run_dir = Path(run_dir)
-    config = read_record(run_dir / RECORD_NAME)["config"]
-    saved = torch.load(run_dir / MODEL, weights_only=True)
-    representation = (
-        instantiate_from_record(config["representation"], "config.representation")
-        if saved["online"]
-        else None
-    )
-    backbone = instantiate_from_record(config["backbone"], "config.backbone")
-    backbone = backbone(**saved["backbone_args"])
-    norm = input_norm(saved["backbone_args"]["in_channels"]) if saved.get("input_norm") else None
+    record = open_record(run_dir, LOADER)
+    nodes = {k: config_node(run_dir / RECORD_NAME, record, k, LOADER)
+             for k in ("representation", "backbone")}  # fmt: skip
+    path = run_dir / MODEL
+    saved = load_checkpoint(path, remedy=LOADER.remedy)
+    part = functools.partial(payload_part, path, saved, remedy=LOADER.file_remedy)
+    weights, arguments = part("state_dict", dict), part("backbone_args", dict)
+    representation = None
+    if part("online", bool):  # a representation computed in the model, with weights of its own
+        representation = instantiate_from_record(nodes["representation"], "config.representation")
+    backbone = instantiate_from_record(nodes["backbone"], "config.backbone")
+    try:
+        backbone = backbone(**arguments)
+    except (TypeError, ValueError) as error:  # arguments no backbone takes
+        raise RefusedFolder(
+            f"{path}: backbone_args={arguments!r} do not build config.backbone ({error}): "
+            f"{LOADER.file_remedy}"
+        ) from None
+    norm = input_norm(arguments["in_channels"]) if saved.get("input_norm") else None
     model = RecognitionModel(representation, backbone, norm)
-    model.load_state_dict(saved["state_dict"])
+    check_weights(path, weights, model.state_dict(), LOADER.file_remedy)
+    model.load_state_dict(weights)
     return model
 
 
@@ -623,6 +655,30 @@ def _fold_count(settings: dict[str, Any]) -> int:
         return folds
     root = resolve_root(settings.get("data_root"), settings["synthetic"], settings["cache_dir"])
     return settings["videos"](root, train=False, fold=0).person_fold[1]
+
+
+def _person_folds_problem(values: Mapping[str, Any]) -> str | None:
+    """A split by person into more folds than the videos have persons, said before the run's
+    record is written (the data set says it only once the run builds its data): the persons
+    under ``data_root`` as the data set counts them, from the file names it lists (nothing
+    decoded; its own one line, naming the folder, passes through), or those a generated set
+    would hold, its ``synthetic.persons`` (nothing generated)."""
+    videos = values.get("videos")
+    if not isinstance(videos, Mapping) or videos.get("protocol") != "person_folds":
+        return None
+    folds = videos.get("folds", 2)
+    if folds == "persons":
+        return None
+    if values.get("data_root"):
+        instantiate(videos)(Path(values["data_root"]), train=False, fold=0)
+        return None
+    persons = (values.get("synthetic") or {}).get("persons")
+    whose = f"the persons task.synthetic.persons={persons} generates"
+    return folds_problem(folds, persons, whose) if isinstance(persons, int) else None
+
+
+# What edr-run checks before any work (edr.checks.config.check_together)
+train_recognition.settings_problem = _person_folds_problem  # type: ignore[attr-defined]
 
 
 def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:

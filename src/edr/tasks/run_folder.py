@@ -8,6 +8,11 @@ config checked as ``edr-run`` checks its overrides, :func:`edr.checks.config.che
 :mod:`edr.tasks.rebuild` has refused targets that are not the suite's). :func:`check_weights`
 refuses a checkpoint or network file whose weights are not those of the network the record
 describes (a foreign file, a bare tensor, the other input's network).
+
+Its parts serve every reader, each saying its own remedy (:class:`Reader`): edr-eval
+(:func:`edr.tasks.atari.evaluate_checkpoint`), a recognition run's ``load_model``
+(:func:`open_record`, without the task node, whose data and cache need not be on this machine),
+and edr-run resuming a run (:func:`check_record_fields`; Atari's checkpoint against its network).
 """
 
 from __future__ import annotations
@@ -22,18 +27,50 @@ import torch
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from edr.checks.config import ConfigError, Seed, check_config, mismatch, writable_folder_problem
+from edr.checks.config import (
+    ConfigError,
+    PositiveInt,
+    Seed,
+    check_config,
+    mismatch,
+    writable_folder_problem,
+)
 from edr.store.folders import LOCK, holder_alive
 from edr.store.records import INTERRUPTED, RECORD_NAME, read_record
 from edr.tasks.rebuild import UntrustedRecord, check_targets
 
 STATUSES = ("running", "finished", INTERRUPTED, "failed")  # what edr-run writes
-# What a refused record's message advises: the record is the run's; edr-eval reads it as it is.
-RESTORE = "restore the value edr-run wrote, or score a copy of the run that holds it"
+# A record's fields its readers rely on (edr-run's resume, edr-eval), each as edr-run writes it.
+RECORD_FIELDS = {"seed": Seed, "attempt": PositiveInt | None}
 
 
-class RefusedFolder(ValueError):
-    """A run folder that is not read or written; the message is one line naming the file."""
+class RefusedFolder(ConfigError):
+    """A run folder that is not read or written; the message is one line naming the file (a
+    :class:`ConfigError`: edr-run refuses it as it refuses a bad value)."""
+
+
+@dataclass(frozen=True)
+class Reader:
+    """Who reads run folders, for what its refusals say: its name (a command or a function),
+    the verb of what it does with a run (``score``, ``load``), the tasks whose runs it reads,
+    where another task's run is read instead, and what an unreadable record's message advises.
+    """
+
+    name: str
+    verb: str
+    tasks: tuple[str, ...]
+    elsewhere: str
+    remedy: str
+
+    @property
+    def restore(self) -> str:
+        """What a refused record's message advises: the record is the run's, read as it is."""
+        return f"restore the value edr-run wrote, or {self.verb} a copy of the run that holds it"
+
+    @property
+    def file_remedy(self) -> str:
+        """What a refused weights file's message advises."""
+        return f"{self.verb} the file with the run folder that wrote it (its run.json beside it)"
 
 
 @dataclass(frozen=True)
@@ -51,50 +88,73 @@ class RunFolder:
 
 
 def open_run_folder(
-    run_dir: Path, *, reader: str, task: str, remedy: str, trust_env_module: bool = False,
-    writes: bool = True,
-) -> RunFolder:  # fmt: skip
-    """``run_dir`` checked for ``reader`` (the command, for messages) of ``task`` runs
-    (``remedy``: what its unreadable record's message advises); with ``writes``, also that
-    files can be written beside the run's. :class:`RefusedFolder` otherwise
-    (:class:`UntrustedRecord` for a target or a module that is not the suite's; an unreadable
-    record :class:`UnreadableRecord`, a missing one :class:`FileNotFoundError`)."""
-    if holder_alive(run_dir):
-        raise RefusedFolder(
-            f"{run_dir / LOCK}: a live run holds this folder and writes into it: score it once "
-            "that run has stopped, or score a copy of the folder"
-        )
-    path = run_dir / RECORD_NAME
-    record = read_record(path, remedy)
-    if record.get("task", task) != task:
-        raise RefusedFolder(
-            f"{path} is a {record['task']} run: {reader} reads {task} runs only (a recognition "
-            "run's test accuracy is in its run.json, its model in model.pt)"
-        )
-    if record.get("status") not in STATUSES:
-        raise RefusedFolder(
-            f"{path}: status={record.get('status')!r}: expected one of {', '.join(STATUSES)} "
-            f"(what edr-run writes); {RESTORE}"
-        )
-    if expected := mismatch(record.get("seed"), Seed):
-        raise RefusedFolder(f"{path}: seed={record.get('seed')!r}: expected {expected}; {RESTORE}")
-    node = _task_node(path, record, trust_env_module)
+    run_dir: Path, reader: Reader, *, trust_env_module: bool = False, writes: bool = True
+) -> RunFolder:
+    """``run_dir`` checked for ``reader`` (:func:`open_record`), then its record's task node
+    (:func:`_task_node`) and, with ``writes``, that files can be written beside the run's.
+    :class:`RefusedFolder` otherwise (:class:`UntrustedRecord` for a target or a module that
+    is not the suite's; an unreadable record :class:`UnreadableRecord`, a missing one
+    :class:`FileNotFoundError`)."""
+    record = open_record(run_dir, reader)
+    node = _task_node(run_dir / RECORD_NAME, record, trust_env_module, reader)
     if writes and (problem := writable_folder_problem(run_dir)):
         raise RefusedFolder(
-            f"{run_dir}: expected {problem}; nothing was scored: score a copy of the folder in "
-            "a place this process can write"
+            f"{run_dir}: expected {problem}; nothing was scored: {reader.verb} a copy of the "
+            "folder in a place this process can write"
         )
     return RunFolder(run_dir, record, node)
 
 
-def _task_node(path: Path, record: dict[str, Any], trust_env_module: bool) -> dict[str, Any]:
+def open_record(run_dir: Path, reader: Reader) -> dict[str, Any]:
+    """The record of ``run_dir``, once no live run holds the folder (its ``run.lock``), for
+    ``reader``: a run of one of its tasks, its fields as edr-run writes them
+    (:func:`check_record_fields`). :class:`RefusedFolder` otherwise, naming the file."""
+    if holder_alive(run_dir):
+        raise RefusedFolder(
+            f"{run_dir / LOCK}: a live run holds this folder and writes into it: {reader.verb} "
+            f"it once that run has stopped, or {reader.verb} a copy of the folder"
+        )
+    path = run_dir / RECORD_NAME
+    record = read_record(path, reader.remedy)
+    if record.get("task", reader.tasks[0]) not in reader.tasks:
+        raise RefusedFolder(
+            f"{path} is a {record['task']} run: {reader.name} reads {' or '.join(reader.tasks)} "
+            f"runs only ({reader.elsewhere})"
+        )
+    check_record_fields(path, record, reader.restore)
+    return record
+
+
+def check_record_fields(path: Path, record: dict[str, Any], remedy: str) -> None:
+    """:class:`RefusedFolder` naming ``path`` and ``remedy`` where the record's status or one of
+    :data:`RECORD_FIELDS` is not what edr-run writes (a record edited by hand, or another's)."""
+    if record.get("status") not in STATUSES:
+        raise RefusedFolder(
+            f"{path}: status={record.get('status')!r}: expected one of {', '.join(STATUSES)} "
+            f"(what edr-run writes); {remedy}"
+        )
+    for key, hint in RECORD_FIELDS.items():
+        if expected := mismatch(record.get(key), hint):
+            raise RefusedFolder(f"{path}: {key}={record.get(key)!r}: expected {expected}; {remedy}")
+
+
+def config_node(path: Path, record: dict[str, Any], key: str, reader: Reader) -> dict[str, Any]:
+    """The record's ``config.<key>`` (what rebuilds the run's parts); :class:`RefusedFolder`
+    where it holds none."""
+    config = record.get("config")
+    node = config.get(key) if isinstance(config, dict) else None
+    if not isinstance(node, dict):
+        raise RefusedFolder(f"{path} has no config.{key} to rebuild the run from; {reader.restore}")
+    return node
+
+
+def _task_node(
+    path: Path, record: dict[str, Any], trust_env_module: bool, reader: Reader
+) -> dict[str, Any]:
     """The record's ``config.task``, checked in this order: the targets it names (nothing
     imported that is not the suite's), the modules making its env would import (only with
     ``trust_env_module``), then every value as ``edr-run`` checks its overrides."""
-    config = record.get("config")
-    node = config.get("task") if isinstance(config, dict) else None
-    if not isinstance(node, dict):
-        raise RefusedFolder(f"{path} has no config.task to rebuild the run from; {RESTORE}")
+    node = config_node(path, record, "task", reader)
     try:
         check_targets(node, "config.task")
     except UntrustedRecord as error:
@@ -115,20 +175,21 @@ def _task_node(path: Path, record: dict[str, Any], trust_env_module: bool) -> di
         cfg = OmegaConf.create({"seed": record["seed"], "task": node})
         check_config(cfg, entry={"seed": Seed})
     except ConfigError as error:
-        raise RefusedFolder(f"{path}: config.{error}; {RESTORE}") from None
+        raise RefusedFolder(f"{path}: config.{error}; {reader.restore}") from None
     except OmegaConfBaseException as error:  # an interpolation, a key OmegaConf cannot hold
         reason = " ".join(str(error).split())[:200]
         raise RefusedFolder(
-            f"{path}: config.task is not a resolved config ({reason}); {RESTORE}"
+            f"{path}: config.task is not a resolved config ({reason}); {reader.restore}"
         ) from None
     return node
 
 
-def check_weights(path: Path, weights: Any, expected: Mapping[str, torch.Tensor]) -> None:
-    """:class:`RefusedFolder` unless ``weights`` (what ``path`` holds as a network's state
-    dict) has the keys of ``expected`` (the state dict of the network the run's record
-    describes), each a tensor of the same shape."""
-    remedy = "score the file with the run folder that wrote it (its run.json beside it)"
+def check_weights(
+    path: Path, weights: Any, expected: Mapping[str, torch.Tensor], remedy: str
+) -> None:
+    """:class:`RefusedFolder` ending in ``remedy`` unless ``weights`` (what ``path`` holds as a
+    network's state dict) has the keys of ``expected`` (the state dict of the network the run's
+    record describes), each a tensor of the same shape."""
     if not isinstance(weights, Mapping):
         raise RefusedFolder(
             f"{path} holds {type(weights).__name__}, not a network's weights: {remedy}"
@@ -154,13 +215,13 @@ def check_weights(path: Path, weights: Any, expected: Mapping[str, torch.Tensor]
             )
 
 
-def payload_part(path: Path, payload: Any, key: str, kind: type) -> Any:
+def payload_part(path: Path, payload: Any, key: str, kind: type, remedy: str) -> Any:
     """``payload[key]`` (what ``path`` holds: a checkpoint's or a network file's dict), which must
-    be a ``kind``; :class:`RefusedFolder` naming what the file holds otherwise."""
+    be a ``kind``; :class:`RefusedFolder` naming what the file holds, and ``remedy``, otherwise."""
     if not isinstance(payload, dict):
         raise RefusedFolder(
             f"{path} holds {type(payload).__name__}, not what edr-run writes (a dict with "
-            f"'{key}'): score the run folder that wrote it"
+            f"'{key}'): {remedy}"
         )
     value = payload.get(key)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
@@ -168,6 +229,6 @@ def payload_part(path: Path, payload: Any, key: str, kind: type) -> Any:
         raise RefusedFolder(
             f"{path}: '{key}' is {type(value).__name__ if key in payload else 'missing'}, "
             f"expected {kind.__name__} (the file holds {keys or 'nothing'}): not what edr-run "
-            "writes; score the run folder that wrote it"
+            f"writes; {remedy}"
         )
     return value
