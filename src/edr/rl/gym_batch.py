@@ -36,7 +36,7 @@ class GymBatch(EnvBase):
         self.observation_spec = Composite(
             pixels=Bounded(0, 255, shape=(*n, *frame), dtype=torch.uint8), shape=n
         )
-        self.action_spec = OneHot(actions, shape=(*n, actions))
+        self.action_spec = OneHot(actions, shape=(*n, actions), dtype=torch.int64)  # as serial's
         self.reward_spec = Unbounded(shape=(*n, 1))
         flag = Categorical(2, shape=(*n, 1), dtype=torch.bool)
         self.done_spec = Composite(
@@ -55,7 +55,7 @@ class GymBatch(EnvBase):
         return out.update(self.full_done_spec.zero())
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        actions = tensordict.get("action").argmax(-1).numpy()  # one-hot -> index, int64
+        actions = tensordict.get("action").long().argmax(-1).numpy()  # one-hot -> index, int64
         steps = [env.step(action) for env, action in zip(self._envs, actions, strict=True)]
         frames, rewards, terminated, truncated, _ = zip(*steps, strict=True)
         self._pixels = np.stack(frames)
