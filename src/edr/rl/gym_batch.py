@@ -4,8 +4,8 @@ env (``task.env.backend=batch``, what ``auto`` gives a user's own game).
 It gives what torchrl's ``SerialEnv`` of ``GymWrapper``s gives (the ``serial`` backend): the same
 frames, rewards and ends for the same seed, each env seeded by a seeded reset along torchrl's
 chain of seeds, an env reset only where torchrl flags it (tests/test_own_game_streams.py). It
-skips their per-env tensordicts and spec checks: on the screening games those cost ~10x the
-game's own step (docs/own_game.md, "Where a run's time goes").
+skips their per-env tensordicts and spec checks, which on the screening games cost several
+times the game's own step (docs/own_game.md, "Where a run's time goes").
 """
 
 from __future__ import annotations
