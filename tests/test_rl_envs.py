@@ -191,12 +191,14 @@ def test_envpool_resets_only_the_flagged_env_and_plays_the_paac_preset() -> None
     env.close()
 
 
-def test_own_gymnasium_env_with_image_frames(monkeypatch) -> None:
+@pytest.mark.parametrize("backend", ["serial", "batch"])
+def test_own_gymnasium_env_with_image_frames(monkeypatch, backend: str) -> None:
     monkeypatch.syspath_prepend(str(Path(__file__).parent))
     env = make_atari_env(
-        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend="serial",
+        "EdrCatch-v0", preset="none", module="catch_game", num_envs=2, backend=backend,
         edr=EDR(color="gray"), keep_inputs=False,
     )  # fmt: skip
+    check_env_specs(env)
     rollout = env.rollout(12, break_when_any_done=False)
     assert rollout["next", "observation"].shape == (2, 12, 3 + 2, 84, 84)
     assert "pixels" not in rollout and "edr" not in rollout["next"]

@@ -2,7 +2,8 @@
 
 Backends: ``envpool`` (EnvPool's C++ thread pool steps every env; one process), ``parallel``
 (torchrl's ``ParallelEnv``: one process per env), ``serial`` (one process, one env after
-another) and ``single`` (one env, no batch dimension).
+another), ``batch`` (the same as ``serial``, without torchrl's per-env wrappers:
+``edr.rl.gym_batch``) and ``single`` (one env, no batch dimension).
 
 Presets (the same on every backend):
 - ``paac`` (the paper's era): frame skip 4 with a max over the last two frames, no sticky
@@ -52,12 +53,13 @@ from torchrl.envs import (
 from edr.checks import interrupts
 from edr.checks.config import Check, ConfigError
 from edr.representations import EDR
+from edr.rl.gym_batch import GymBatch
 from edr.rl.transform import ObservationFrame
 
 gym.register_envs(ale_py)
 
 Preset = Literal["paac", "v5", "none"]
-Backend = Literal["envpool", "parallel", "serial", "single"]
+Backend = Literal["envpool", "parallel", "serial", "batch", "single"]
 ObsDtype = Literal["float32", "float16", "bfloat16"]  # an observation frame's dtype
 SCREEN = 84  # observations are SCREEN x SCREEN
 
@@ -215,9 +217,16 @@ def _torchrl_gym(
     sweep is a child process too, and must stop on them."""
     if parent is not None and os.getpid() != parent:
         interrupts.ignore_stop_signals()
+    return GymWrapper(_gym_env(game, preset, train, life_loss, module), from_pixels=False)
+
+
+def _gym_env(
+    game: str, preset: Preset, train: bool, life_loss: bool, module: str | None
+) -> gym.Env:
+    """One gymnasium env: a user's (``preset="none"``) or an ALE game's."""
     if preset == "none":
-        return GymWrapper(gym_image_env(game, module), from_pixels=False)
-    return GymWrapper(gym_atari(game, preset, train, life_loss))
+        return gym_image_env(game, module)
+    return gym_atari(game, preset, train, life_loss)
 
 
 class EnvPoolAtari(EnvBase):
@@ -393,7 +402,7 @@ def make_atari_env(
         raise ValueError("the observation needs FDR, EDR or both")
     if preset == "none" and backend == "envpool":
         raise ValueError(
-            "backend=envpool plays ALE games only; preset=none needs parallel or serial"
+            "backend=envpool plays ALE games only; preset=none needs batch, serial or parallel"
         )
     factory = functools.partial(_torchrl_gym, game, preset, train, life_loss, module)
     if backend == "single":
@@ -405,10 +414,16 @@ def make_atari_env(
     elif backend == "parallel":
         in_workers = functools.partial(factory, parent=os.getpid())
         base = _ParallelEnv(num_envs, in_workers, mp_start_method="spawn")
+    elif backend == "batch":
+        base = GymBatch(
+            functools.partial(_gym_env, game, preset, train, life_loss, module), num_envs
+        )
     elif backend == "envpool":
         base = EnvPoolAtari(game, num_envs, preset, train, life_loss)
     else:
-        raise ValueError(f"backend must be envpool, parallel, serial or single, got {backend!r}")
+        raise ValueError(
+            f"backend must be envpool, parallel, serial, batch or single, got {backend!r}"
+        )
     transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"])]
     if preset == "paac" and train:
         transforms.append(SignTransform(in_keys=["reward"]))

@@ -483,11 +483,11 @@ def _evaluate(
     seed: int, settings: EvalSettings,
 ) -> Games:  # fmt: skip
     """``settings.plays`` whole games (raw scores: no life loss, no clipping), played at once
-    on as many envs: EnvPool's when training used it, else serial (the network steps them as
-    one batch). The network plays in eval mode: batch-normed frames by the running statistics
+    on as many envs: EnvPool's or a batch's when training used it, else serial (the network
+    steps them as one batch). The network plays in eval mode: batch-normed frames by the running statistics
     training left, not by the statistics of the games played together, which it leaves as they
     were; its actions sampled from the policy or greedy (``settings.policy``)."""
-    backend = "envpool" if backend == "envpool" else "serial"
+    backend = backend if backend in ("envpool", "batch") else "serial"
     env = _env(num_envs=settings.plays, backend=backend, train=False, **env_kwargs)
     env.set_seed(seed + 1)
     was_training = network.training
