@@ -118,6 +118,24 @@ NEW_OVERRIDES = {
         ),
         "env_id='NoSuch-v0': expected an env gymnasium can make",
     ),
+    "an own env id without preset=none": (
+        (*ATARI, "task.env.env_id=EdrFruit-v0", "task.env.env_module=edr.rl.games"),
+        "task.env.preset='paac': expected preset=none with env_id=<id>",
+    ),
+    "preset=none without an env id": (
+        (*ATARI, "task.env.preset=none"),
+        "task.env.preset='none': expected preset=none with env_id=<id>",
+    ),
+    "EnvPool for an own env": (
+        (
+            *ATARI,
+            "task.env.env_id=EdrFruit-v0",
+            "task.env.env_module=edr.rl.games",
+            "task.env.preset=none",
+            "task.env.backend=envpool",
+        ),
+        "task.env.backend='envpool': expected auto, batch, serial or parallel with preset=none",
+    ),
     "an unset variable in a seed": ((*KTH, "seed=${oc.env:EDR_NO_SUCH_SEED}"), "EDR_NO_SUCH_SEED"),
     "an interpolation of no key": ((*KTH, "task.epochs=${no.such.key}"), "task.epochs=${no.such"),
     "the representation deleted": ((*KTH, "~representation"), "a run needs its representation"),

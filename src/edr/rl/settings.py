@@ -49,11 +49,32 @@ class EnvSettings:
     # frames come by themselves where the network computes in bfloat16)
 
     @staticmethod
+    def pairing_problem(values: Mapping[str, Any]) -> str | None:
+        """``env_id``, ``preset`` and ``backend`` that cannot go together: an id of your own
+        without ``preset=none`` (or ``preset=none`` without an id), EnvPool for your own env."""
+        env_id, preset = values.get("env_id"), values.get("preset")
+        if (env_id is None) != (preset != "none"):
+            return (
+                f"preset={preset!r}: expected preset=none with env_id=<id> (a gymnasium env of "
+                "your own, env_module=<module that registers it>), or an ALE preset without "
+                f"env_id (got env_id={env_id!r})"
+            )
+        if preset == "none" and values.get("backend") == "envpool":
+            return (
+                "backend='envpool': expected auto, batch, serial or parallel with preset=none "
+                "(envpool plays ALE games only)"
+            )
+        return None
+
+    @staticmethod
     def settings_problem(values: Mapping[str, Any]) -> str | None:
-        """A user's env id said before any run folder is touched: one gymnasium's registry
+        """A user's env id said before any run folder is touched: ids, preset and backend that
+        cannot go together (:meth:`pairing_problem`), an id gymnasium's registry
         lacks (where no ``env_module`` registers it on import), or, with ``preset=none``, one
         whose spaces PAAC cannot play (an env made and closed: only own-env runs pay for it,
         and their module is imported, as the run would)."""
+        if pairing := EnvSettings.pairing_problem(values):
+            return pairing
         env_id, module = values.get("env_id"), values.get("env_module")
         if not isinstance(env_id, str):
             return None

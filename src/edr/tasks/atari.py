@@ -400,17 +400,9 @@ def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
             "gradients, so its parameters would not learn; learnable EDR trains in the "
             "recognition tasks (task=kth, task=ucf101)"
         )
-    if (env.env_id is None) != (env.preset != "none"):
-        raise ConfigError(
-            "a gymnasium env of your own takes task.env.env_id=<id> with task.env.preset=none "
-            f"(and task.env.env_module=<module that registers it>); got env_id={env.env_id!r}, "
-            f"preset={env.preset!r}"
-        )
-    if env.preset == "none" and env.backend == "envpool":
-        raise ConfigError(
-            "task.env.backend=envpool plays ALE games only: your env needs backend auto, serial "
-            "or parallel"
-        )
+    pairing = {"env_id": env.env_id, "preset": env.preset, "backend": env.backend}
+    if problem := EnvSettings.pairing_problem(pairing):
+        raise ConfigError(f"task.env.{problem}")
 
 
 def _check_memory(
