@@ -110,6 +110,10 @@ def _legend_outside(fig: plt.Figure, axes: list[plt.Axes]) -> None:
     fig.tight_layout(rect=(0, height / fig.get_figheight(), 1, 1))
 
 
+MAX_PANELS_A_ROW = 3
+MAX_FIGURE_WIDTH = 20.0  # inches: 2,200 px at the figures' 110 dpi
+
+
 def _curve_panels(
     runs: pd.DataFrame,
     panel: str,
@@ -124,19 +128,24 @@ def _curve_panels(
     panels = sorted(runs[panel].dropna().unique())
     if not panels:  # records that lack what the panels are by (no data part): listed, not drawn
         return None
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.5), squeeze=False)
+    cols = min(len(panels), MAX_PANELS_A_ROW)  # a grid, so that many panels stay readable
+    rows = -(-len(panels) // cols)
+    fig, grid = plt.subplots(rows, cols, figsize=(4.5 * cols, 3.5 * rows), squeeze=False)
+    axes = list(grid.flat[: len(panels)])
+    for spare in grid.flat[len(panels) :]:
+        fig.delaxes(spare)
     styles = label_styles([runs[runs[panel] == p] for p in panels], labels)
     drawn = [
         _draw_curves(ax, runs[runs[panel] == p], labels, x, y, styles)
-        for ax, p in zip(axes[0], panels, strict=True)
+        for ax, p in zip(axes, panels, strict=True)
     ]
-    for ax, name, ok in zip(axes[0], panels, drawn, strict=True):
+    for ax, name, ok in zip(axes, panels, drawn, strict=True):
         ax.set(title=name if ok else f"{name}: nothing to draw yet", xlabel=xlabel, ylabel=ylabel)
     if not any(drawn):
         plt.close(fig)
         return None
     fig.suptitle(title, fontsize=10)
-    _legend_outside(fig, list(axes[0]))
+    _legend_outside(fig, axes)
     return fig
 
 
@@ -151,7 +160,8 @@ def fig5_atari_curves(runs: pd.DataFrame, published: dict[str, Any]) -> tuple[pd
         games = sorted(done["game"].dropna().unique())
         if not games:  # records from before the game was recorded: listed under Table 1
             return None
-        fig, axes = plt.subplots(2, len(games), figsize=(4.5 * len(games), 6), squeeze=False)
+        width = min(4.5, MAX_FIGURE_WIDTH / len(games))  # six games stay within a page
+        fig, axes = plt.subplots(2, len(games), figsize=(width * len(games), 6), squeeze=False)
         drawn = []
         styles = label_styles([done[done["game"] == game] for game in games], ["label"])
         for k, game in enumerate(games):
