@@ -149,7 +149,7 @@ def test_an_input_that_needs_edr_refuses_another_representation(tmp_path) -> Non
 
     with pytest.raises(ConfigError, match="representation=edr"):
         train_paac(out_dir=tmp_path, seed=0, env=EnvSettings(inputs="fdr_edr", edr=FDR()))
-    with pytest.raises(ConfigError, match=r"task\.env\.env_id"):
+    with pytest.raises(ConfigError, match=r"task\.env\.preset='paac': expected preset=none"):
         train_paac(out_dir=tmp_path, seed=0, env=EnvSettings(env_id="X-v0", edr=EDR(color="gray")))
 
 
