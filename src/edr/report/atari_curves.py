@@ -243,8 +243,8 @@ def ratio_verdict(
         verdict = (
             f"no evidence either way {where}: no run of either input scores above random play "
             f"({random_play:,.0f} a game) there, so this compares two policies that play the "
-            f"game worse than chance, not what EDR adds to one that plays it; by the numbers "
-            f"alone, {verdict}"
+            f"game worse than chance, not what EDR adds to one that plays it (why they do: "
+            f"docs/atari.md, 'Centipede: why the score falls'); by the numbers alone, {verdict}"
         )
     else:
         verdict = f"{verdict} {where}"
