@@ -352,3 +352,112 @@ def test_a_folder_a_live_run_holds_is_not_resumed(trained, folder, no_env) -> No
     said = str(refused.value)
     assert f"is held by process {os.getpid()}" in said and f"({folder / LOCK}): wait" in said
     assert _files(folder) == before
+
+
+# ---- load_network (a library call) checks the folder as edr-eval does --------------------------
+def _load_refused(folder: Path) -> str:
+    """``atari.load_network(folder)`` refused in one line naming a file of the folder, with a
+    remedy that says to load something, the folder byte for byte as it was; the line."""
+    from edr.checks.config import ConfigError
+    from edr.store.checkpoints import UnreadableCheckpoint
+    from edr.store.records import UnreadableRecord
+    from edr.tasks.rebuild import UntrustedRecord
+
+    before = _files(folder)
+    with pytest.raises(
+        (ConfigError, UnreadableRecord, UnreadableCheckpoint, UntrustedRecord)
+    ) as refused:
+        atari.load_network(folder)
+    line = str(refused.value)
+    assert "\n" not in line and str(folder) in line and "load " in line, line
+    assert "resume=false" not in line and "weights_only" not in line, line
+    assert _files(folder) == before
+    return line
+
+
+def test_load_network_loads_a_sound_folder(folder) -> None:
+    network = atari.load_network(folder)
+    saved = torch.load(folder / "network.pt", weights_only=True)
+    assert network.precision == "float32"
+    for key, tensor in network.state_dict().items():
+        assert torch.equal(tensor, saved["state_dict"][key]), key
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda r: r.update(status="done"), "run.json: status='done': expected one of"),
+        (lambda r: r.update(status=3), "run.json: status=3: expected one of"),
+        (lambda r: r.pop("seed"), "run.json: seed=None: expected an integer"),
+        (lambda r: r.update(seed="zero"), "run.json: seed='zero': expected an integer"),
+        (lambda r: r.update(seed=[0]), "run.json: seed=[0]: expected an integer"),
+        (lambda r: r.update(attempt="x"), "run.json: attempt='x': expected an integer"),
+        (lambda r: r.update(task="kth"), "is a kth run: load_network reads atari runs only"),
+        (lambda r: _env(r).update(frame_stack=0), "config.task.env.frame_stack=0: expected"),
+        (lambda r: _env(r).update(_target_="os.system"), "config.task.env._target_=os.system"),
+        (lambda r: r["config"].update(task=[1, 2]), "run.json has no config.task"),
+    ],
+    ids=["status", "status a number", "no seed", "seed a word", "seed a list", "attempt",
+         "another task", "frame_stack", "a foreign target", "config.task a list"],
+)  # fmt: skip
+def test_load_network_refuses_a_tampered_record(change, said, folder, no_env) -> None:
+    _tamper(folder, change)
+    line = _load_refused(folder)
+    assert str(folder / "run.json") in line and said in line, line
+
+
+def test_load_network_refuses_a_record_that_is_not_one_and_a_held_folder(
+    trained, folder, no_env
+) -> None:
+    (folder / "run.json").write_text("[1, 2]")
+    assert "run.json holds list, not a run record: load a run folder" in _load_refused(folder)
+    (folder / "run.json").write_text("")
+    assert "run.json is not a readable run record" in _load_refused(folder)
+    shutil.copy(trained[0] / "run.json", folder / "run.json")
+    holder = {"host": socket.gethostname(), "pid": os.getpid(),
+              "process": process_identity(os.getpid())}  # fmt: skip
+    (folder / LOCK).write_text(json.dumps(holder))
+    assert f"{folder / LOCK}: a live run holds this folder and writes into it: load it once" in (
+        _load_refused(folder)
+    )
+
+
+@pytest.mark.parametrize(
+    ("payload", "said"),
+    [
+        (torch.zeros(3), "network.pt holds Tensor, not what edr-run writes"),
+        ({"model": {}, "epoch": 3}, "network.pt: 'state_dict' is missing, expected dict"),
+        ({"state_dict": {"w": torch.zeros(2)}, "arguments": {}},
+         "network.pt holds the weights of another network than its run.json describes"),
+        ({"state_dict": {}, "arguments": [1]}, "network.pt: 'arguments' is list, expected dict"),
+        ({"x": _Foreign()}, "network.pt cannot be read (it holds Python objects"),
+        (b"", "network.pt cannot be read"),
+        ("half", "network.pt cannot be read"),
+    ],
+    ids=["a bare tensor", "no state_dict", "another network's keys", "arguments a list",
+         "a pickled object", "an empty file", "cut in half"],
+)  # fmt: skip
+def test_load_network_refuses_a_foreign_network_file(payload, said, folder) -> None:
+    path = folder / "network.pt"
+    if payload == "half":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif isinstance(payload, bytes):
+        path.write_bytes(payload)
+    else:
+        torch.save(payload, path)
+    line = _load_refused(folder)
+    assert said in line and ("load the file with the run folder" in line
+                             or "load a run folder edr-run wrote" in line), line  # fmt: skip
+
+
+def test_load_network_refuses_the_other_inputs_network_and_a_recognition_model(folder) -> None:
+    saved = torch.load(folder / "network.pt", weights_only=True)
+    arguments = {**saved["arguments"], "in_channels": 20}  # FDR+EDR: 5 channels a frame
+    other = PAACNetwork(**{k: v for k, v in arguments.items() if k != "precision"})
+    torch.save({"state_dict": other.state_dict(), "arguments": arguments}, folder / "network.pt")
+    line = _load_refused(folder)
+    assert "network.pt: normalise.weight is (5,), where the network its run.json" in line
+    # a recognition run's model.pt, as it saves it: its state dict and backbone's arguments
+    torch.save({"state_dict": {"backbone.fc.weight": torch.zeros(6, 4)}, "online": True,
+                "backbone_args": {"in_channels": 2}}, folder / "network.pt")  # fmt: skip
+    assert "network.pt: 'arguments' is missing, expected dict" in _load_refused(folder)

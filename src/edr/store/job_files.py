@@ -47,7 +47,7 @@ class RunLog(logging.FileHandler):
         else:
             super().emit(record)
 
-    def release(self) -> None:
+    def start_writing(self) -> None:
         """Write the records held so far, then every record as it comes."""
         self.held = False
         waiting, self.waiting = self.waiting, []
@@ -64,7 +64,7 @@ def open_run_log() -> None:
     and what comes: the folder is checked."""
     for handler in logging.getLogger().handlers:
         if isinstance(handler, RunLog):
-            handler.release()
+            handler.start_writing()
 
 
 def write_job_config(cfg: DictConfig) -> None:

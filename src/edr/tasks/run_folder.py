@@ -158,7 +158,7 @@ def _task_node(
     try:
         check_targets(node, "config.task")
     except UntrustedRecord as error:
-        raise UntrustedRecord(f"{path}: {error}") from None
+        raise UntrustedRecord(f"{path}: {error}; {reader.restore}") from None
     env = node.get("env") if isinstance(node.get("env"), dict) else {}
     named = {key: env.get(key) for key in ("env_id", "game", "env_module")}
     from edr.rl.settings import EnvSettings  # ale-py, gymnasium: only for an Atari record
