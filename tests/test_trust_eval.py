@@ -461,3 +461,120 @@ def test_load_network_refuses_the_other_inputs_network_and_a_recognition_model(f
     torch.save({"state_dict": {"backbone.fc.weight": torch.zeros(6, 4)}, "online": True,
                 "backbone_args": {"in_channels": 2}}, folder / "network.pt")  # fmt: skip
     assert "network.pt: 'arguments' is missing, expected dict" in _load_refused(folder)
+
+
+# ---- a refused resume through Hydra: run.log and .hydra/ wait for the folder's check ----------
+@pytest.fixture
+def edr_run(monkeypatch):
+    """``edr_run(*argv)``: edr-run's main in this process, Hydra's job logging and files as the
+    command has them; its exit status. Logging and Hydra are left as they were found."""
+    import logging
+
+    from hydra.core.global_hydra import GlobalHydra
+
+    import edr.run
+
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+
+    def call(*argv: str) -> int:
+        monkeypatch.setattr(sys, "argv", ["edr-run", *argv])
+        try:
+            edr.run.main()
+        except SystemExit as stopped:
+            return int(stopped.code or 0)
+        return 0
+
+    yield call
+    for handler in root.handlers:
+        if handler not in handlers:
+            handler.close()
+    root.handlers[:] = handlers
+    root.setLevel(level)
+    GlobalHydra.instance().clear()
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
+    """Every file under ``folder`` with its bytes and modification time."""
+    return {str(p.relative_to(folder)): (p.read_bytes(), p.stat().st_mtime_ns)
+            for p in folder.rglob("*") if p.is_file()}  # fmt: skip
+
+
+def _earlier_attempt(folder: Path) -> None:
+    """``folder``'s run.log and .hydra/ as an earlier attempt through Hydra left them."""
+    (folder / "run.log").write_text("[earlier] the first attempt's log\n")
+    (folder / ".hydra").mkdir()
+    for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+        (folder / ".hydra" / name).write_text(f"# the first attempt's {name}\n")
+
+
+def _held(folder: Path) -> None:
+    holder = {"host": socket.gethostname(), "pid": os.getpid(),
+              "process": process_identity(os.getpid())}  # fmt: skip
+    (folder / LOCK).write_text(json.dumps(holder))
+
+
+@pytest.mark.parametrize(
+    ("spoil", "said"),
+    [
+        (lambda f: torch.save({"network": torch.zeros(3)}, f / "checkpoint.pt"),
+         "checkpoint.pt: 'network' is Tensor, expected dict"),
+        (lambda f: _tamper(f, lambda r: r.update(attempt="x")),
+         "run.json: attempt='x': expected an integer"),
+        (_held, "is held by process"),
+    ],
+    ids=["a foreign checkpoint", "a tampered record", "a live lock"],
+)  # fmt: skip
+def test_a_refused_resume_leaves_its_folder_byte_for_byte(
+    spoil, said, trained, folder, edr_run, capsys
+) -> None:
+    _stopped(folder, trained[1])
+    _earlier_attempt(folder)
+    spoil(folder)
+    before = _snapshot(folder)
+    assert edr_run(*TINY, f"hydra.run.dir={folder}") == 2
+    assert _snapshot(folder) == before  # run.log, .hydra/ and the lock's file included
+    (line,) = [line for line in capsys.readouterr().out.splitlines() if "[ERROR]" in line]
+    assert said in line, line
+
+
+@pytest.mark.slow  # a resume through Hydra, to its evaluation game (about 5 s)
+def test_a_resume_that_passes_writes_its_log_and_hydras_files(trained, folder, edr_run) -> None:
+    """The lines said before the check (the checkpoint loaded) land in run.log once it passed,
+    after the earlier attempt's; .hydra/ says this attempt's config."""
+    _stopped(folder, trained[1])
+    _earlier_attempt(folder)
+    assert edr_run(*TINY, f"hydra.run.dir={folder}", "threads=1") == 0
+    log = (folder / "run.log").read_text().splitlines()
+    assert log[0] == "[earlier] the first attempt's log"
+    loading = next(i for i, line in enumerate(log) if "loading" in line and "checkpoint.pt" in line)
+    resuming = next(i for i, line in enumerate(log) if "resuming from its checkpoint" in line)
+    assert loading < resuming and "atari finished" in log[-1]
+    assert "threads=1" in (folder / ".hydra" / "overrides.yaml").read_text()
+    assert "task:" in (folder / ".hydra" / "config.yaml").read_text()
+    assert "job_logging" in (folder / ".hydra" / "hydra.yaml").read_text()
+    assert json.loads((folder / "run.json").read_text())["attempt"] == 2
+
+
+@pytest.mark.slow  # a sweep through Hydra (about 3 s)
+def test_a_refused_sweep_cell_leaves_its_folder_and_a_new_folder_keeps_its_log(
+    trained, folder, edr_run, tmp_path, capsys
+) -> None:
+    """In a sweep, the refused cell's folder stays as it was; a cell refused in a folder of its
+    own (new, empty: resume=true with nothing to resume) says why in its run.log, as before."""
+    from edr.store.identity import job_dirname
+
+    sweep = tmp_path / "sweep"
+    cells = {seed: sweep / job_dirname([*TINY, f"seed={seed}"]) for seed in (0, 1)}
+    shutil.copytree(folder, cells[0])
+    _stopped(cells[0], trained[1])
+    _earlier_attempt(cells[0])
+    torch.save(torch.zeros(3), cells[0] / "checkpoint.pt")
+    before = _snapshot(cells[0])
+    assert edr_run("-m", *TINY, "seed=0,1", "resume=true", f"hydra.sweep.dir={sweep}") == 1
+    assert _snapshot(cells[0]) == before
+    said = capsys.readouterr().out
+    assert "checkpoint.pt holds Tensor, not what edr-run writes" in said
+    assert "0 ran, 0 failed, 0 interrupted, 2 refused" in said, said[-2000:]
+    (line,) = (cells[1] / "run.log").read_text().splitlines()
+    assert "resume=true but" in line and "holds no checkpoint" in line
