@@ -238,8 +238,10 @@ def _attempt(out_dir: Path, record: dict[str, Any], task: Callable[[], Any], sta
 def _check_resumable(out_dir: Path, record: dict[str, Any], target: Any, task: Any) -> None:
     """What a resumed run continues from, checked before its record is rewritten, as edr-eval
     checks a folder (:mod:`edr.tasks.run_folder`): the record's status and fields as edr-run
-    writes them, and where the task says how (its ``check_resumable``: Atari's checkpoint
-    against its network), the checkpoint; one line naming the file, the folder as it was."""
+    writes them, and where the task says how (its ``check_resumable``: Atari's, a recognition
+    run's or DVS transfer's checkpoint against its network), the checkpoint; one line naming
+    the file, the folder as it was (its ``run.log`` and ``.hydra/`` too:
+    :mod:`edr.store.job_files`)."""
     from edr.tasks.run_folder import check_record_fields  # numba's kernels: for a resume only
 
     check_record_fields(out_dir / RECORD_NAME, record, START_OVER)
