@@ -578,3 +578,34 @@ def test_a_refused_sweep_cell_leaves_its_folder_and_a_new_folder_keeps_its_log(
     assert "0 ran, 0 failed, 0 interrupted, 2 refused" in said, said[-2000:]
     (line,) = (cells[1] / "run.log").read_text().splitlines()
     assert "resume=true but" in line and "holds no checkpoint" in line
+
+
+def test_the_run_log_writes_at_once_in_a_new_folder_and_waits_in_one_that_holds_files(tmp_path):
+    import logging
+
+    from edr.store.job_files import RunLog
+
+    def said(handler: RunLog, message: str) -> None:
+        handler.handle(logging.makeLogRecord({"msg": message}))
+        handler.flush()
+
+    new = tmp_path / "new"
+    new.mkdir()  # as Hydra makes a run's folder
+    handler = RunLog(str(new / "run.log"))
+    said(handler, "a new folder's first line")
+    assert (new / "run.log").read_text() == "a new folder's first line\n"
+    handler.close()
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "run.json").write_text("{}")
+    refused = RunLog(str(old / "run.log"))
+    said(refused, "refused")
+    refused.close()  # the run refused: its lines dropped, the file never made
+    assert sorted(p.name for p in old.iterdir()) == ["run.json"]
+    checked = RunLog(str(old / "run.log"))
+    said(checked, "before the check")
+    assert not (old / "run.log").exists()
+    checked.start_writing()
+    said(checked, "after it")
+    checked.close()
+    assert (old / "run.log").read_text() == "before the check\nafter it\n"
