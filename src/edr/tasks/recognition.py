@@ -202,7 +202,7 @@ def _fresh_model(settings: dict[str, Any]) -> RecognitionModel:
     root = resolve_root(given["data_root"], given["synthetic"], given["cache_dir"])
     classes = given["videos"](root, train=True).classes
     online = None if representation.precompute else representation
-    frames = given["frames"] if online is None else representation.out_frames(given["frames"])
+    frames = _backbone_frames(representation, given["frames"])
     in_channels = representation.out_channels(1 if given["gray"] else 3)
     with torch.random.fork_rng():
         model, _ = _model(given["backbone"], online, in_channels, len(classes), frames,
@@ -497,7 +497,7 @@ def _check_sizes(
         )
     check_enough_frames(frames, {"the representation": representation})
     check_decoded_memory(resize, frames, channels)
-    in_frames = frames if representation.precompute else representation.out_frames(frames)
+    in_frames = _backbone_frames(representation, frames)
     check_memory(
         f"task.batch_size={batch_size}, task.frames={frames}, task.crop={crop}",
         f"a batch of the backbone's input ({batch_size} clips of {in_frames} frames at "
@@ -512,20 +512,26 @@ def _check_backbone_takes(
 ) -> None:  # fmt: skip
     """One line, before any video is decoded, for clips the backbone cannot take (a crop
     smaller than its convolutions and pooling need): one clip of zeros through a fresh one."""
-    clip_frames = frames if representation.precompute else representation.out_frames(frames)
+    in_frames = _backbone_frames(representation, frames)
     in_channels = representation.out_channels(channels)
     try:  # on a fork of torch's generator: the run's own weights and clips stay as they were
         with torch.random.fork_rng(), torch.no_grad():  # a backbone may probe its sizes as built
-            network = backbone(in_channels=in_channels, num_classes=2, frames=clip_frames,
+            network = backbone(in_channels=in_channels, num_classes=2, frames=in_frames,
                                height=crop, width=crop)  # fmt: skip
-            network.eval()(torch.zeros(1, clip_frames, in_channels, crop, crop))
+            network.eval()(torch.zeros(1, in_frames, in_channels, crop, crop))
     except RuntimeError as error:
         reason = " ".join(str(error).split())[:160]
         raise ConfigError(
             f"task.crop={crop}, task.frames={frames}: the backbone "
-            f"cannot take clips of {clip_frames} frames at {crop}x{crop} ({reason}): use a "
+            f"cannot take clips of {in_frames} frames at {crop}x{crop} ({reason}): use a "
             "larger task.crop (or more task.frames)"
         ) from None
+
+
+def _backbone_frames(representation: Representation, frames: int) -> int:
+    """The frames of a clip the backbone sees, of ``frames`` decoded: a precomputed
+    representation's clip has as many, one computed on the fly as many as it makes of them."""
+    return frames if representation.precompute else representation.out_frames(frames)
 
 
 def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
@@ -554,14 +560,13 @@ def _clip_sets(
         source: Callable = PrecomputedSource(frame_source, representation, cache_dir)
         name = type(representation).__name__
         source.cache.fill(paths, source.compute, desc=f"precomputing {name}")
-        online, clip_frames, negate = None, frames, representation.hflip_negate
+        online, negate = None, representation.hflip_negate
     else:
         source, online, negate = frame_source, representation, ()
-        clip_frames = representation.out_frames(frames)
     clips = {"frames": frames, "crop": crop, "negate": negate, "control": control}
     train_set = ClipDataset(data.train, source, train=True, scales=scales, **clips)
     test_set = ClipDataset(data.test, source, train=False, **clips)
-    return online, train_set, test_set, clip_frames
+    return online, train_set, test_set, _backbone_frames(representation, frames)
 
 
 def _train_epoch(
