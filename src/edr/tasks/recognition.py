@@ -182,14 +182,16 @@ def check_resumable(out_dir: Path, **settings: Any) -> None:
     stays as it was."""
     candidates = [out_dir / CHECKPOINT, *sorted(out_dir.glob(f"fold*/{CHECKPOINT}"))]
     paths = [p for p in candidates if p.is_file() and not _fold_done(p.parent)]
-    if not paths:
-        return
-    expected = _fresh_model(settings).state_dict()
+    weights: dict[Path, Any] = {}  # each file's model, once it holds what fit_recognition writes
     for path in paths:
         state = load_checkpoint(path)
         for key, kind in CHECKPOINT_PARTS.items():
             payload_part(path, state, key, kind, START_OVER)
-        check_weights(path, state["model"], expected, START_OVER)
+        weights[path] = state["model"]
+    if weights:  # the model built only now: a file of something else is refused before
+        expected = _fresh_model(settings).state_dict()
+        for path, found in weights.items():
+            check_weights(path, found, expected, START_OVER)
 
 
 def _fresh_model(settings: dict[str, Any]) -> RecognitionModel:
