@@ -471,11 +471,13 @@ def edr_run(monkeypatch):
     import logging
 
     from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
 
     import edr.run
 
     root = logging.getLogger()
     handlers, level = root.handlers[:], root.level
+    hydra_config = HydraConfig.instance().cfg
 
     def call(*argv: str) -> int:
         monkeypatch.setattr(sys, "argv", ["edr-run", *argv])
@@ -492,6 +494,7 @@ def edr_run(monkeypatch):
     root.handlers[:] = handlers
     root.setLevel(level)
     GlobalHydra.instance().clear()
+    HydraConfig.instance().cfg = hydra_config
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
