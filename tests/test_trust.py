@@ -185,3 +185,120 @@ def test_the_suites_own_parts_pass() -> None:
     check_targets({"_target_": "edr.representations.EDR", "half_lives": [3.8]}, "representation")
     check_targets({"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-3}, "optimizer")
     check_targets({"_target_": "edr.rl.settings.EvalSettings", "plays": 2}, "evaluation")
+
+
+# ---- a recognition run's resume checks its checkpoint against the model, before any work ------
+def _kth(kth_run: Path, folder: Path) -> list[str]:
+    """The overrides of kth_run's config, writing into ``folder``."""
+    return ["task=kth", "debug=tiny", f"out_dir={folder}", f"task.cache_dir={kth_run / 'cache'}",
+            "task.logger="]  # fmt: skip
+
+
+def _stopped(kth_run: Path, tmp_path: Path) -> Path:
+    """A copy of kth_run's files (its cache left where it is), its record saying interrupted:
+    edr-run of its config resumes it from its checkpoint.pt."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    for path in kth_run.iterdir():
+        if path.is_file():
+            shutil.copy(path, folder / path.name)
+    record = json.loads((folder / "run.json").read_text())
+    (folder / "run.json").write_text(json.dumps({**record, "status": "interrupted"}))
+    return folder
+
+
+def _resume_refused(folder: Path, kth_run: Path, compose_config, monkeypatch) -> str:
+    """edr-run of the folder's config, resuming it: refused in one line advising an edr-run
+    option, before any video is read, the folder byte for byte as it was; the line."""
+    from edr.tasks import recognition
+
+    def read(*args, **kwargs) -> None:
+        raise AssertionError("the videos were read before the refusal")
+
+    monkeypatch.setattr(recognition._Data, "find", read)
+    before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in folder.iterdir()}
+    with pytest.raises((ConfigError, UnreadableCheckpoint)) as refused:
+        run(compose_config(*_kth(kth_run, folder)))
+    line = str(refused.value)
+    assert "\n" not in line and "resume=false" in line and str(folder) in line, line
+    assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in folder.iterdir()} == before
+    return line
+
+
+def _other_class_count(state: dict) -> dict:
+    """``state`` with its classifier (the model's last weight) for 7 classes."""
+    weights = dict(state["model"])
+    last = [key for key in weights if key.endswith("weight")][-1]
+    weights[last] = torch.zeros(7, *weights[last].shape[1:])
+    return {**state, "model": weights}
+
+
+ATARI_CHECKPOINT = {"network": {"w": torch.zeros(2)}, "optimizer": {}, "schedule": {}, "rng": {},
+                    "env_steps": 20, "history": []}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda state: torch.zeros(3), "checkpoint.pt holds Tensor, not what edr-run writes"),
+        (lambda state: {k: v for k, v in state.items() if k != "history"},
+         "checkpoint.pt: 'history' is missing, expected list"),
+        (lambda state: {**state, "model": {"w": torch.zeros(2)}},
+         "checkpoint.pt holds the weights of another network than its run.json describes"),
+        (_other_class_count, "where the network its run.json describes takes (6,"),
+        (lambda state: ATARI_CHECKPOINT, "checkpoint.pt: 'model' is missing, expected dict"),
+        (lambda state: {"x": datetime.date(2020, 1, 1)},
+         "checkpoint.pt cannot be read (it holds Python objects"),
+        (lambda state: b"PK\x03\x04 cut", "checkpoint.pt cannot be read"),
+    ],
+    ids=["a bare tensor", "no history", "another network's keys", "another class count",
+         "an Atari run's checkpoint", "a pickled object", "cut short"],
+)  # fmt: skip
+def test_a_foreign_checkpoint_is_refused_before_a_recognition_run_resumes(
+    change, said, kth_run, tmp_path, compose_config, monkeypatch
+) -> None:
+    folder = _stopped(kth_run, tmp_path)
+    changed = change(torch.load(folder / "checkpoint.pt", weights_only=True))
+    if isinstance(changed, bytes):
+        (folder / "checkpoint.pt").write_bytes(changed)
+    else:
+        torch.save(changed, folder / "checkpoint.pt")
+    line = _resume_refused(folder, kth_run, compose_config, monkeypatch)
+    assert said in line and str(folder / "checkpoint.pt") in line, line
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda r: r.update(status=3), "run.json: status=3: expected one of"),
+        (lambda r: r.update(attempt=[1]), "run.json: attempt=[1]: expected an integer"),
+    ],
+    ids=["status a number", "attempt a list"],
+)  # fmt: skip
+def test_a_tampered_record_is_refused_before_a_recognition_run_resumes(
+    change, said, kth_run, tmp_path, compose_config, monkeypatch
+) -> None:
+    folder = _stopped(kth_run, tmp_path)
+    record = json.loads((folder / "run.json").read_text())
+    change(record)
+    (folder / "run.json").write_text(json.dumps(record))
+    assert said in _resume_refused(folder, kth_run, compose_config, monkeypatch)
+
+
+def test_each_unfinished_folds_checkpoint_is_checked(kth_run, tmp_path, compose_config) -> None:
+    from hydra.utils import instantiate
+
+    from edr.tasks.recognition import check_resumable
+    from edr.tasks.run_folder import RefusedFolder
+
+    settings = instantiate(compose_config(*_kth(kth_run, tmp_path)).task).keywords
+    for fold in (0, 1):
+        (tmp_path / f"fold{fold}").mkdir()
+        shutil.copy(kth_run / "checkpoint.pt", tmp_path / f"fold{fold}" / "checkpoint.pt")
+    check_resumable(tmp_path, **settings)  # the checkpoints fit_recognition writes pass
+    torch.save(torch.zeros(3), tmp_path / "fold1" / "checkpoint.pt")
+    with pytest.raises(RefusedFolder, match=r"fold1/checkpoint\.pt holds Tensor.*resume=false"):
+        check_resumable(tmp_path, **settings)
+    for name in ("fold.json", "predictions.json"):  # a finished fold is not read again
+        (tmp_path / "fold1" / name).write_text("{}")
+    check_resumable(tmp_path, **settings)

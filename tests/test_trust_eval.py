@@ -352,3 +352,263 @@ def test_a_folder_a_live_run_holds_is_not_resumed(trained, folder, no_env) -> No
     said = str(refused.value)
     assert f"is held by process {os.getpid()}" in said and f"({folder / LOCK}): wait" in said
     assert _files(folder) == before
+
+
+# ---- load_network (a library call) checks the folder as edr-eval does --------------------------
+def _load_refused(folder: Path) -> str:
+    """``atari.load_network(folder)`` refused in one line naming a file of the folder, with a
+    remedy that says to load something, the folder byte for byte as it was; the line."""
+    from edr.checks.config import ConfigError
+    from edr.store.checkpoints import UnreadableCheckpoint
+    from edr.store.records import UnreadableRecord
+    from edr.tasks.rebuild import UntrustedRecord
+
+    before = _files(folder)
+    with pytest.raises(
+        (ConfigError, UnreadableRecord, UnreadableCheckpoint, UntrustedRecord)
+    ) as refused:
+        atari.load_network(folder)
+    line = str(refused.value)
+    assert "\n" not in line and str(folder) in line and "load " in line, line
+    assert "resume=false" not in line and "weights_only" not in line, line
+    assert _files(folder) == before
+    return line
+
+
+def test_load_network_loads_a_sound_folder(folder) -> None:
+    network = atari.load_network(folder)
+    saved = torch.load(folder / "network.pt", weights_only=True)
+    assert network.precision == "float32"
+    for key, tensor in network.state_dict().items():
+        assert torch.equal(tensor, saved["state_dict"][key]), key
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (lambda r: r.update(status="done"), "run.json: status='done': expected one of"),
+        (lambda r: r.update(status=3), "run.json: status=3: expected one of"),
+        (lambda r: r.pop("seed"), "run.json: seed=None: expected an integer"),
+        (lambda r: r.update(seed="zero"), "run.json: seed='zero': expected an integer"),
+        (lambda r: r.update(seed=[0]), "run.json: seed=[0]: expected an integer"),
+        (lambda r: r.update(attempt="x"), "run.json: attempt='x': expected an integer"),
+        (lambda r: r.update(task="kth"), "is a kth run: load_network reads atari runs only"),
+        (lambda r: _env(r).update(frame_stack=0), "config.task.env.frame_stack=0: expected"),
+        (lambda r: _env(r).update(_target_="os.system"), "config.task.env._target_=os.system"),
+        (lambda r: r["config"].update(task=[1, 2]), "run.json has no config.task"),
+    ],
+    ids=["status", "status a number", "no seed", "seed a word", "seed a list", "attempt",
+         "another task", "frame_stack", "a foreign target", "config.task a list"],
+)  # fmt: skip
+def test_load_network_refuses_a_tampered_record(change, said, folder, no_env) -> None:
+    _tamper(folder, change)
+    line = _load_refused(folder)
+    assert str(folder / "run.json") in line and said in line, line
+
+
+def test_load_network_refuses_a_record_that_is_not_one_and_a_held_folder(
+    trained, folder, no_env
+) -> None:
+    (folder / "run.json").write_text("[1, 2]")
+    assert "run.json holds list, not a run record: load a run folder" in _load_refused(folder)
+    (folder / "run.json").write_text("")
+    assert "run.json is not a readable run record" in _load_refused(folder)
+    shutil.copy(trained[0] / "run.json", folder / "run.json")
+    holder = {"host": socket.gethostname(), "pid": os.getpid(),
+              "process": process_identity(os.getpid())}  # fmt: skip
+    (folder / LOCK).write_text(json.dumps(holder))
+    assert f"{folder / LOCK}: a live run holds this folder and writes into it: load it once" in (
+        _load_refused(folder)
+    )
+
+
+@pytest.mark.parametrize(
+    ("payload", "said"),
+    [
+        (torch.zeros(3), "network.pt holds Tensor, not what edr-run writes"),
+        ({"model": {}, "epoch": 3}, "network.pt: 'state_dict' is missing, expected dict"),
+        ({"state_dict": {"w": torch.zeros(2)}, "arguments": {}},
+         "network.pt holds the weights of another network than its run.json describes"),
+        ({"state_dict": {}, "arguments": [1]}, "network.pt: 'arguments' is list, expected dict"),
+        ({"x": _Foreign()}, "network.pt cannot be read (it holds Python objects"),
+        (b"", "network.pt cannot be read"),
+        ("half", "network.pt cannot be read"),
+    ],
+    ids=["a bare tensor", "no state_dict", "another network's keys", "arguments a list",
+         "a pickled object", "an empty file", "cut in half"],
+)  # fmt: skip
+def test_load_network_refuses_a_foreign_network_file(payload, said, folder) -> None:
+    path = folder / "network.pt"
+    if payload == "half":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif isinstance(payload, bytes):
+        path.write_bytes(payload)
+    else:
+        torch.save(payload, path)
+    line = _load_refused(folder)
+    assert said in line and ("load the file with the run folder" in line
+                             or "load a run folder edr-run wrote" in line), line  # fmt: skip
+
+
+def test_load_network_refuses_the_other_inputs_network_and_a_recognition_model(folder) -> None:
+    saved = torch.load(folder / "network.pt", weights_only=True)
+    arguments = {**saved["arguments"], "in_channels": 20}  # FDR+EDR: 5 channels a frame
+    other = PAACNetwork(**{k: v for k, v in arguments.items() if k != "precision"})
+    torch.save({"state_dict": other.state_dict(), "arguments": arguments}, folder / "network.pt")
+    line = _load_refused(folder)
+    assert "network.pt: normalise.weight is (5,), where the network its run.json" in line
+    # a recognition run's model.pt, as it saves it: its state dict and backbone's arguments
+    torch.save({"state_dict": {"backbone.fc.weight": torch.zeros(6, 4)}, "online": True,
+                "backbone_args": {"in_channels": 2}}, folder / "network.pt")  # fmt: skip
+    assert "network.pt: 'arguments' is missing, expected dict" in _load_refused(folder)
+
+
+# ---- a refused resume through Hydra: run.log and .hydra/ wait for the folder's check ----------
+@pytest.fixture
+def edr_run(monkeypatch):
+    """``edr_run(*argv)``: edr-run's main in this process, Hydra's job logging and files as the
+    command has them; its exit status. Logging and Hydra are left as they were found."""
+    import logging
+
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
+
+    import edr.run
+
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    hydra_config = HydraConfig.instance().cfg
+
+    def call(*argv: str) -> int:
+        monkeypatch.setattr(sys, "argv", ["edr-run", *argv])
+        try:
+            edr.run.main()
+        except SystemExit as stopped:
+            return int(stopped.code or 0)
+        return 0
+
+    yield call
+    for handler in root.handlers:
+        if handler not in handlers:
+            handler.close()
+    root.handlers[:] = handlers
+    root.setLevel(level)
+    GlobalHydra.instance().clear()
+    HydraConfig.instance().cfg = hydra_config
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
+    """Every file under ``folder`` with its bytes and modification time."""
+    return {str(p.relative_to(folder)): (p.read_bytes(), p.stat().st_mtime_ns)
+            for p in folder.rglob("*") if p.is_file()}  # fmt: skip
+
+
+def _earlier_attempt(folder: Path) -> None:
+    """``folder``'s run.log and .hydra/ as an earlier attempt through Hydra left them."""
+    (folder / "run.log").write_text("[earlier] the first attempt's log\n")
+    (folder / ".hydra").mkdir()
+    for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+        (folder / ".hydra" / name).write_text(f"# the first attempt's {name}\n")
+
+
+def _held(folder: Path) -> None:
+    holder = {"host": socket.gethostname(), "pid": os.getpid(),
+              "process": process_identity(os.getpid())}  # fmt: skip
+    (folder / LOCK).write_text(json.dumps(holder))
+
+
+@pytest.mark.parametrize(
+    ("spoil", "said"),
+    [
+        (lambda f: torch.save({"network": torch.zeros(3)}, f / "checkpoint.pt"),
+         "checkpoint.pt: 'network' is Tensor, expected dict"),
+        (lambda f: _tamper(f, lambda r: r.update(attempt="x")),
+         "run.json: attempt='x': expected an integer"),
+        (_held, "is held by process"),
+    ],
+    ids=["a foreign checkpoint", "a tampered record", "a live lock"],
+)  # fmt: skip
+def test_a_refused_resume_leaves_its_folder_byte_for_byte(
+    spoil, said, trained, folder, edr_run, capsys
+) -> None:
+    _stopped(folder, trained[1])
+    _earlier_attempt(folder)
+    spoil(folder)
+    before = _snapshot(folder)
+    assert edr_run(*TINY, f"hydra.run.dir={folder}") == 2
+    assert _snapshot(folder) == before  # run.log, .hydra/ and the lock's file included
+    (line,) = [line for line in capsys.readouterr().out.splitlines() if "[ERROR]" in line]
+    assert said in line, line
+
+
+@pytest.mark.slow  # a resume through Hydra, to its evaluation game (about 5 s)
+def test_a_resume_that_passes_writes_its_log_and_hydras_files(trained, folder, edr_run) -> None:
+    """The lines said before the check (the checkpoint loaded) land in run.log once it passed,
+    after the earlier attempt's; .hydra/ says this attempt's config."""
+    _stopped(folder, trained[1])
+    _earlier_attempt(folder)
+    assert edr_run(*TINY, f"hydra.run.dir={folder}", "threads=1") == 0
+    log = (folder / "run.log").read_text().splitlines()
+    assert log[0] == "[earlier] the first attempt's log"
+    loading = next(i for i, line in enumerate(log) if "loading" in line and "checkpoint.pt" in line)
+    resuming = next(i for i, line in enumerate(log) if "resuming from its checkpoint" in line)
+    assert loading < resuming and "atari finished" in log[-1]
+    assert "threads=1" in (folder / ".hydra" / "overrides.yaml").read_text()
+    assert "task:" in (folder / ".hydra" / "config.yaml").read_text()
+    assert "job_logging" in (folder / ".hydra" / "hydra.yaml").read_text()
+    assert json.loads((folder / "run.json").read_text())["attempt"] == 2
+
+
+@pytest.mark.slow  # a sweep through Hydra (about 3 s)
+def test_a_refused_sweep_cell_leaves_its_folder_and_a_new_folder_keeps_its_log(
+    trained, folder, edr_run, tmp_path, capsys
+) -> None:
+    """In a sweep, the refused cell's folder stays as it was; a cell refused in a folder of its
+    own (new, empty: resume=true with nothing to resume) says why in its run.log, as before."""
+    from edr.store.identity import job_dirname
+
+    sweep = tmp_path / "sweep"
+    cells = {seed: sweep / job_dirname([*TINY, f"seed={seed}"]) for seed in (0, 1)}
+    shutil.copytree(folder, cells[0])
+    _stopped(cells[0], trained[1])
+    _earlier_attempt(cells[0])
+    torch.save(torch.zeros(3), cells[0] / "checkpoint.pt")
+    before = _snapshot(cells[0])
+    assert edr_run("-m", *TINY, "seed=0,1", "resume=true", f"hydra.sweep.dir={sweep}") == 1
+    assert _snapshot(cells[0]) == before
+    said = capsys.readouterr().out
+    assert "checkpoint.pt holds Tensor, not what edr-run writes" in said
+    assert "0 ran, 0 failed, 0 interrupted, 2 refused" in said, said[-2000:]
+    (line,) = (cells[1] / "run.log").read_text().splitlines()
+    assert "resume=true but" in line and "holds no checkpoint" in line
+
+
+def test_the_run_log_writes_at_once_in_a_new_folder_and_waits_in_one_that_holds_files(tmp_path):
+    import logging
+
+    from edr.store.job_files import RunLog
+
+    def said(handler: RunLog, message: str) -> None:
+        handler.handle(logging.makeLogRecord({"msg": message}))
+        handler.flush()
+
+    new = tmp_path / "new"
+    new.mkdir()  # as Hydra makes a run's folder
+    handler = RunLog(str(new / "run.log"))
+    said(handler, "a new folder's first line")
+    assert (new / "run.log").read_text() == "a new folder's first line\n"
+    handler.close()
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "run.json").write_text("{}")
+    refused = RunLog(str(old / "run.log"))
+    said(refused, "refused")
+    refused.close()  # the run refused: its lines dropped, the file never made
+    assert sorted(p.name for p in old.iterdir()) == ["run.json"]
+    checked = RunLog(str(old / "run.log"))
+    said(checked, "before the check")
+    assert not (old / "run.log").exists()
+    checked.start_writing()
+    said(checked, "after it")
+    checked.close()
+    assert (old / "run.log").read_text() == "before the check\nafter it\n"

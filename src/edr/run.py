@@ -16,6 +16,7 @@ import logging
 import os
 import sys
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ from edr.store.folders import (
     refused_cells,
 )
 from edr.store.identity import job_dirname, run_identity, warn_ignored, with_root_symbols
+from edr.store.job_files import open_run_log, write_job_config
 from edr.store.records import (
     INTERRUPTED,
     RECORD_NAME,
@@ -119,7 +121,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     except OSError as error:
         raise ConfigError(f"cannot create the run folder {out_dir}: {error.strerror}") from None
     with hold_folder(out_dir):
-        remove_partial_files(out_dir)  # left by a writer killed mid-write (SIGKILL, power)
         return _run_held(cfg, out_dir)
 
 
@@ -132,6 +133,7 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     semantic, fingerprint, cell = run_identity(cfg)
     plan = plan_attempt(out_dir, fingerprint, semantic, cfg.resume)
     if plan.action == "skip":
+        _checked(out_dir)
         log.info("%s: finished already with this config: skipped (resume=false reruns it)", out_dir)
         log_attempt(out_dir, "skipped", fingerprint)
         return plan.record["metrics"]
@@ -148,6 +150,8 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         arguments["resume"] = plan.action == "resume"
     if plan.action == "resume":
         _check_resumable(out_dir, plan.record or {}, target, task)
+    _checked(out_dir)
+    write_job_config(cfg)
     if plan.extended:
         log.info("%s: extending it from its checkpoint (%s)", out_dir, "; ".join(plan.extended))
     elif plan.action == "resume":
@@ -177,29 +181,9 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     }
     write_record(out_dir, record)
     started = time.perf_counter()
-    try:
-        results = task(**arguments)
-    except BaseException as error:
-        interrupted = isinstance(error, KeyboardInterrupt)  # stopped, not failed: it resumes
-        record.update(
-            status=INTERRUPTED if interrupted else "failed",
-            **({} if interrupted else {"error": f"{type(error).__name__}: {error}"}),
-            wall_time_s=round(time.perf_counter() - started, 3),
-            ended_at=now(),
-        )
-        if interrupted:  # what the next attempt continues from (None: it starts over)
-            record["resumes_from"] = progress(out_dir)
-            _say_where_it_resumes(out_dir, record["resumes_from"])
-        with interrupts.deferred():  # a second Ctrl-C does not cut the record short
-            unwritten = write_last_record(out_dir, record)
-            if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
-                log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
-            with contextlib.suppress(OSError):
-                log_attempt(out_dir, record["status"], fingerprint, git=record["git"])
-        raise
+    results = portable(_attempt(out_dir, record, partial(task, **arguments), started))
 
     # ---- the finished record -----------------------------------------------------------------
-    results = portable(results)
     record.update(
         status="finished",
         data={k.removeprefix("data/"): v for k, v in results.items() if k.startswith("data/")},
@@ -218,11 +202,46 @@ def _run_held(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     return record["metrics"]
 
 
+def _checked(out_dir: Path) -> None:
+    """Once ``out_dir`` passed the checks (a run refused before here leaves the folder as it
+    found it): the partial files a writer killed mid-write left (SIGKILL, a power cut) removed,
+    and the run's log opened (:mod:`edr.store.job_files`)."""
+    remove_partial_files(out_dir)
+    open_run_log()
+
+
+def _attempt(out_dir: Path, record: dict[str, Any], task: Callable[[], Any], started: float) -> Any:
+    """``task()``'s results; where it raises, ``record`` (written as running) says how it ended
+    (``interrupted``: it resumes; ``failed`` with the error) before the error goes on."""
+    try:
+        return task()
+    except BaseException as error:
+        interrupted = isinstance(error, KeyboardInterrupt)  # stopped, not failed: it resumes
+        record.update(
+            status=INTERRUPTED if interrupted else "failed",
+            **({} if interrupted else {"error": f"{type(error).__name__}: {error}"}),
+            wall_time_s=round(time.perf_counter() - started, 3),
+            ended_at=now(),
+        )
+        if interrupted:  # what the next attempt continues from (None: it starts over)
+            record["resumes_from"] = progress(out_dir)
+            _say_where_it_resumes(out_dir, record["resumes_from"])
+        with interrupts.deferred():  # a second Ctrl-C does not cut the record short
+            unwritten = write_last_record(out_dir, record)
+            if unwritten:  # a full disk: said once, beside the task's own error, not chained to it
+                log.warning("%s: the record could not say so (%s)", out_dir / "run.json", unwritten)
+            with contextlib.suppress(OSError):
+                log_attempt(out_dir, record["status"], record["fingerprint"], git=record["git"])
+        raise
+
+
 def _check_resumable(out_dir: Path, record: dict[str, Any], target: Any, task: Any) -> None:
     """What a resumed run continues from, checked before its record is rewritten, as edr-eval
     checks a folder (:mod:`edr.tasks.run_folder`): the record's status and fields as edr-run
-    writes them, and where the task says how (its ``check_resumable``: Atari's checkpoint
-    against its network), the checkpoint; one line naming the file, the folder as it was."""
+    writes them, and where the task says how (its ``check_resumable``: Atari's, a recognition
+    run's or DVS transfer's checkpoint against its network), the checkpoint; one line naming
+    the file, the folder as it was (its ``run.log`` and ``.hydra/`` too:
+    :mod:`edr.store.job_files`)."""
     from edr.tasks.run_folder import check_record_fields  # numba's kernels: for a resume only
 
     check_record_fields(out_dir / RECORD_NAME, record, START_OVER)

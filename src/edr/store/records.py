@@ -148,7 +148,7 @@ def read_record(path: Path, remedy: str = RERUN) -> dict[str, Any]:
             f"{path} is not a readable run record ({reason}): {remedy}"
         ) from None
     if not isinstance(record, dict):
-        raise UnreadableRecord(f"{path} holds {type(record).__name__}, not a run record")
+        raise UnreadableRecord(f"{path} holds {type(record).__name__}, not a run record: {remedy}")
     return record
 
 

@@ -21,7 +21,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -517,14 +517,6 @@ def _score_metrics(games: Games | None, prefix: str = "eval/") -> dict[str, floa
     }
 
 
-def load_network(run_dir: str | Path) -> PAACNetwork:
-    """The network an Atari run trained, rebuilt from ``network.pt``."""
-    saved = torch.load(Path(run_dir) / NETWORK, weights_only=True)
-    network = PAACNetwork(**saved["arguments"])
-    network.load_state_dict(saved["state_dict"])
-    return network
-
-
 def _scored_file(folder: RunFolder) -> Path:
     """What :func:`evaluate_checkpoint` scores: a finished run's ``network.pt``, though it keeps
     its checkpoint (to train on), else the checkpoint (a stopped run; a diverged one, whose
@@ -555,27 +547,63 @@ EDR_EVAL = Reader(
     elsewhere="a recognition run's test accuracy is in its run.json, its model in model.pt",
     remedy="score a run folder edr-run wrote, or a copy of it whose files are whole",
 )  # fmt: skip
+# What load_network's refusals advise.
+NETWORK_LOADER = Reader(
+    name="load_network", verb="load", tasks=("atari",),
+    elsewhere="load a recognition run's model with edr.tasks.recognition.load_model",
+    remedy="load a run folder edr-run wrote, or a copy of it whose files are whole",
+)  # fmt: skip
 
 
-def _scored_weights(folder: RunFolder, source: Path, network: PAACNetwork) -> dict[str, Any]:
-    """``source``'s weights loaded into ``network`` (refused in one line unless they are the
-    network's keys and shapes) and its precision set; the env steps the weights had trained
-    (a checkpoint's own count, else the record's)."""
-    state = load_checkpoint(source, remedy=EDR_EVAL.remedy)
-    part = functools.partial(payload_part, source, state, remedy=EDR_EVAL.file_remedy)
+class _Saved(NamedTuple):
+    """What a checkpoint or ``network.pt`` holds that a reader of its network uses."""
+
+    weights: dict[str, Any]  # the network's state dict, not yet checked against the network
+    precision: Any  # the precision it trained in (None in runs from before the setting)
+    env_steps: int | None  # the env steps the weights had trained
+
+
+def _saved(folder: RunFolder, source: Path, reader: Reader) -> _Saved:
+    """What ``source`` (the folder's checkpoint or ``network.pt``) holds, read without building
+    anything; one line naming the file, with ``reader``'s remedy, where it is not what edr-run
+    writes. The env steps: a checkpoint's own count, else the record's."""
+    state = load_checkpoint(source, remedy=reader.remedy)
+    part = functools.partial(payload_part, source, state, remedy=reader.file_remedy)
     if source.name == CHECKPOINT:
-        weights = part("network", dict)
-        steps, precision = part("env_steps", int), state.get("precision")
-    else:
-        weights = part("state_dict", dict)
-        precision = part("arguments", dict).get("precision")
-        metrics = folder.record.get("metrics")
-        steps = metrics.get("train/env_steps") if isinstance(metrics, dict) else None
-    check_weights(source, weights, network.state_dict(), EDR_EVAL.file_remedy)
-    network.load_state_dict(weights)
+        return _Saved(part("network", dict), state.get("precision"), part("env_steps", int))
+    weights, arguments = part("state_dict", dict), part("arguments", dict)
+    metrics = folder.record.get("metrics")
+    steps = metrics.get("train/env_steps") if isinstance(metrics, dict) else None
+    return _Saved(weights, arguments.get("precision"), steps)
+
+
+def _loaded(task: dict[str, Any], source: Path, saved: _Saved, reader: Reader) -> PAACNetwork:
+    """The network ``task`` (train_paac's arguments, from the run's record) describes (one probe
+    env made), holding ``saved``'s weights (refused in one line naming ``source`` unless they
+    are its keys and shapes), in the precision it trained in."""
+    env = task["env"]
+    network, _, _ = _network(_env_kwargs(env), task["network"], env.frame_stack)
+    check_weights(source, saved.weights, network.state_dict(), reader.file_remedy)
+    network.load_state_dict(saved.weights)
     # runs from before the precision setting trained in float32
+    precision = saved.precision
     network.precision = precision if precision in ("float32", "bfloat16") else "float32"
-    return {"train/env_steps": steps}
+    return network
+
+
+def load_network(run_dir: str | Path, trust_env_module: bool = False) -> PAACNetwork:
+    """The network an Atari run trained, from its ``network.pt``. The folder is checked first, as
+    edr-eval checks the folder it scores (:mod:`edr.tasks.run_folder`): no live run holds it,
+    its record is an Atari run's as edr-run writes it and builds only the suite's own parts
+    (a module it names imported only with ``trust_env_module``), and ``network.pt`` holds what
+    edr-run writes, the weights of the network the record describes. Each refusal is one line
+    naming the file; nothing is written."""
+    folder = open_run_folder(Path(run_dir), NETWORK_LOADER, trust_env_module=trust_env_module,
+                             writes=False)  # fmt: skip
+    source = folder.path / NETWORK
+    saved = _saved(folder, source, NETWORK_LOADER)
+    task = instantiate_from_record(folder.task, "config.task").keywords  # EDR built
+    return _loaded(task, source, saved, NETWORK_LOADER)
 
 
 def evaluate_checkpoint(
@@ -601,21 +629,21 @@ def evaluate_checkpoint(
     """
     folder = open_run_folder(Path(run_dir), EDR_EVAL, trust_env_module=trust_env_module)
     source = _scored_file(folder)
+    saved = _saved(folder, source, EDR_EVAL)
     # train_paac's arguments, EDR built
     task = instantiate_from_record(folder.task, "config.task").keywords
+    network = _loaded(task, source, saved, EDR_EVAL)
     env, evaluation = task["env"], task["evaluation"]
     if plays is not None:
         evaluation = replace(evaluation, plays=plays)
     seed = folder.record["seed"] if seed is None else seed
     env_kwargs = _env_kwargs(env)
-    network, _, _ = _network(env_kwargs, task["network"], env.frame_stack)
-    trained = _scored_weights(folder, source, network)
     play = functools.partial(_evaluate, env_kwargs=_frames_for(network, env_kwargs),
                              frame_stack=env.frame_stack, backend=env.resolved_backend(),
                              seed=seed, settings=evaluation)  # fmt: skip
     torch.manual_seed(seed)  # the actions sampled
     games = play(network)
-    metrics = {**trained, "eval/seed": seed, **_score_metrics(games),
+    metrics = {"train/env_steps": saved.env_steps, "eval/seed": seed, **_score_metrics(games),
                **_evaluation_mode(evaluation)}  # fmt: skip
     if random_play:
         torch.manual_seed(seed)

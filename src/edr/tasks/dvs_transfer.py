@@ -39,7 +39,7 @@ from edr.representations import EDR, DVSSimulator, events_to_frames
 from edr.store.atomic import write_json_atomic
 from edr.tasks.metrics import classification_metrics
 from edr.tasks.plots import save_confusion
-from edr.tasks.recognition import CONFUSION, Fitted, check_decoded_memory
+from edr.tasks.recognition import CONFUSION, Fitted, check_decoded_memory, check_resumable
 
 log = logging.getLogger(__name__)
 BIN_FRAMES = 16  # frame intervals binned at the sensor's resolution at a time
@@ -313,3 +313,12 @@ def dvs_transfer(
         **scores,
         **diverged,
     }
+
+
+def _check_pretraining(out_dir: Path, *, pretrain: Callable[..., Fitted], **_: Any) -> None:
+    """The pre-training's checkpoint a resumed run would continue from, checked as a KTH run's
+    (:func:`edr.tasks.recognition.check_resumable`) before edr-run rewrites the record."""
+    check_resumable(out_dir / "pretrain", **pretrain.keywords)
+
+
+dvs_transfer.check_resumable = _check_pretraining  # type: ignore[attr-defined]  # edr-run calls it

@@ -10,6 +10,7 @@ it); ``train_recognition``, the tasks' entry, returns the metrics only.
 from __future__ import annotations
 
 import functools
+import inspect
 import json
 import logging
 from collections.abc import Callable, Mapping, Sequence
@@ -55,6 +56,7 @@ from edr.store.atomic import write_json_atomic
 from edr.store.checkpoints import (
     CHECKPOINT,
     DATA_FINGERPRINT,
+    START_OVER,
     check_same_data,
     load_checkpoint,
     restore,
@@ -164,6 +166,56 @@ def load_model(run_dir: str | Path) -> RecognitionModel:
     check_weights(path, weights, model.state_dict(), LOADER.file_remedy)
     model.load_state_dict(weights)
     return model
+
+
+# What a checkpoint of fit_recognition holds that a resume reads (the training's parts, its rows).
+CHECKPOINT_PARTS = {"model": dict, "optimizer": dict, "scheduler": dict, "rng": dict,
+                    "history": list}  # fmt: skip
+
+
+def check_resumable(out_dir: Path, **settings: Any) -> None:
+    """The checkpoints a resumed run would continue from (its own; in a split by person, each
+    unfinished fold's), checked before edr-run rewrites the run's record, as ``load_model``
+    checks ``model.pt``: readable, holding what fit_recognition writes, the model's keys and
+    shapes those of the model ``settings`` (fit_recognition's) build (:func:`_fresh_model`:
+    nothing decoded). One line naming the file otherwise, with edr-run's remedy; the folder
+    stays as it was."""
+    candidates = [out_dir / CHECKPOINT, *sorted(out_dir.glob(f"fold*/{CHECKPOINT}"))]
+    paths = [p for p in candidates if p.is_file() and not _fold_done(p.parent)]
+    weights: dict[Path, Any] = {}  # each file's model, once it holds what fit_recognition writes
+    for path in paths:
+        state = load_checkpoint(path)
+        for key, kind in CHECKPOINT_PARTS.items():
+            payload_part(path, state, key, kind, START_OVER)
+        weights[path] = state["model"]
+    if weights:  # the model built only now: a file of something else is refused before
+        expected = _fresh_model(settings).state_dict()
+        for path, found in weights.items():
+            check_weights(path, found, expected, START_OVER)
+
+
+def _fresh_model(settings: dict[str, Any]) -> RecognitionModel:
+    """The model fit_recognition builds from ``settings`` (its arguments, each missing one at
+    its default), on the CPU and a fork of torch's generator (the run's own draws stay as they
+    were); the data set's classes listed, no video decoded."""
+    parameters = inspect.signature(functools.partial(fit_recognition, **settings)).parameters
+    given = {name: parameter.default for name, parameter in parameters.items()}
+    representation: Representation = given["representation"]
+    root = resolve_root(given["data_root"], given["synthetic"], given["cache_dir"])
+    classes = given["videos"](root, train=True).classes
+    online = None if representation.precompute else representation
+    frames = _backbone_frames(representation, given["frames"])
+    in_channels = representation.out_channels(1 if given["gray"] else 3)
+    with torch.random.fork_rng():
+        model, _ = _model(given["backbone"], online, in_channels, len(classes), frames,
+                          given["crop"], given["normalize_input"], torch.device("cpu"))  # fmt: skip
+    return model
+
+
+def _fold_done(fold_dir: Path) -> bool:
+    """Whether a fold of a split by person finished (its metrics and predictions written): a
+    resumed run does not train it again."""
+    return (fold_dir / FOLD_METRICS).is_file() and (fold_dir / PREDICTIONS).is_file()
 
 
 def fit_recognition(
@@ -447,7 +499,7 @@ def _check_sizes(
         )
     check_enough_frames(frames, {"the representation": representation})
     check_decoded_memory(resize, frames, channels)
-    in_frames = frames if representation.precompute else representation.out_frames(frames)
+    in_frames = _backbone_frames(representation, frames)
     check_memory(
         f"task.batch_size={batch_size}, task.frames={frames}, task.crop={crop}",
         f"a batch of the backbone's input ({batch_size} clips of {in_frames} frames at "
@@ -462,20 +514,26 @@ def _check_backbone_takes(
 ) -> None:  # fmt: skip
     """One line, before any video is decoded, for clips the backbone cannot take (a crop
     smaller than its convolutions and pooling need): one clip of zeros through a fresh one."""
-    clip_frames = frames if representation.precompute else representation.out_frames(frames)
+    in_frames = _backbone_frames(representation, frames)
     in_channels = representation.out_channels(channels)
     try:  # on a fork of torch's generator: the run's own weights and clips stay as they were
         with torch.random.fork_rng(), torch.no_grad():  # a backbone may probe its sizes as built
-            network = backbone(in_channels=in_channels, num_classes=2, frames=clip_frames,
+            network = backbone(in_channels=in_channels, num_classes=2, frames=in_frames,
                                height=crop, width=crop)  # fmt: skip
-            network.eval()(torch.zeros(1, clip_frames, in_channels, crop, crop))
+            network.eval()(torch.zeros(1, in_frames, in_channels, crop, crop))
     except RuntimeError as error:
         reason = " ".join(str(error).split())[:160]
         raise ConfigError(
             f"task.crop={crop}, task.frames={frames}: the backbone "
-            f"cannot take clips of {clip_frames} frames at {crop}x{crop} ({reason}): use a "
+            f"cannot take clips of {in_frames} frames at {crop}x{crop} ({reason}): use a "
             "larger task.crop (or more task.frames)"
         ) from None
+
+
+def _backbone_frames(representation: Representation, frames: int) -> int:
+    """The frames of a clip the backbone sees, of ``frames`` decoded: a precomputed
+    representation's clip has as many, one computed on the fly as many as it makes of them."""
+    return frames if representation.precompute else representation.out_frames(frames)
 
 
 def _check_every_class_trains(root: Path, train_videos: VideoSet) -> None:
@@ -504,14 +562,13 @@ def _clip_sets(
         source: Callable = PrecomputedSource(frame_source, representation, cache_dir)
         name = type(representation).__name__
         source.cache.fill(paths, source.compute, desc=f"precomputing {name}")
-        online, clip_frames, negate = None, frames, representation.hflip_negate
+        online, negate = None, representation.hflip_negate
     else:
         source, online, negate = frame_source, representation, ()
-        clip_frames = representation.out_frames(frames)
     clips = {"frames": frames, "crop": crop, "negate": negate, "control": control}
     train_set = ClipDataset(data.train, source, train=True, scales=scales, **clips)
     test_set = ClipDataset(data.test, source, train=False, **clips)
-    return online, train_set, test_set, clip_frames
+    return online, train_set, test_set, _backbone_frames(representation, frames)
 
 
 def _train_epoch(
@@ -679,6 +736,7 @@ def _person_folds_problem(values: Mapping[str, Any]) -> str | None:
 
 # What edr-run checks before any work (edr.checks.config.check_together)
 train_recognition.settings_problem = _person_folds_problem  # type: ignore[attr-defined]
+train_recognition.check_resumable = check_resumable  # type: ignore[attr-defined]  # edr-run calls it
 
 
 def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
@@ -693,7 +751,7 @@ def _cross_validated(folds: int, settings: dict[str, Any]) -> dict[str, Any]:
         fold_dir = out_dir / f"fold{fold}"
         fold_dir.mkdir(parents=True, exist_ok=True)
         done = fold_dir / FOLD_METRICS
-        if not (done.is_file() and (fold_dir / PREDICTIONS).is_file()):
+        if not _fold_done(fold_dir):
             log.info("fold %d of %d", fold + 1, folds)
             seed_everything(settings["seed"] + 1000 * fold)  # a fold trains alike, resumed or not
             metrics = fit_recognition(**{

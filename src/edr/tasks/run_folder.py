@@ -10,9 +10,10 @@ refuses a checkpoint or network file whose weights are not those of the network 
 describes (a foreign file, a bare tensor, the other input's network).
 
 Its parts serve every reader, each saying its own remedy (:class:`Reader`): edr-eval
-(:func:`edr.tasks.atari.evaluate_checkpoint`), a recognition run's ``load_model``
-(:func:`open_record`, without the task node, whose data and cache need not be on this machine),
-and edr-run resuming a run (:func:`check_record_fields`; Atari's checkpoint against its network).
+(:func:`edr.tasks.atari.evaluate_checkpoint`) and an Atari run's ``load_network``, a
+recognition run's ``load_model`` (:func:`open_record`, without the task node, whose data and
+cache need not be on this machine), and edr-run resuming a run (:func:`check_record_fields`;
+the task's checkpoint against its network: each task's ``check_resumable``).
 """
 
 from __future__ import annotations
@@ -158,7 +159,7 @@ def _task_node(
     try:
         check_targets(node, "config.task")
     except UntrustedRecord as error:
-        raise UntrustedRecord(f"{path}: {error}") from None
+        raise UntrustedRecord(f"{path}: {error}; {reader.restore}") from None
     env = node.get("env") if isinstance(node.get("env"), dict) else {}
     named = {key: env.get(key) for key in ("env_id", "game", "env_module")}
     from edr.rl.settings import EnvSettings  # ale-py, gymnasium: only for an Atari record
