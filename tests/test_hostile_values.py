@@ -86,6 +86,18 @@ ISSUE_OVERRIDES = {
     ),
 }
 NEW_OVERRIDES = {
+    "a frame stack no memory holds": (
+        (*ATARI, "task.env.frame_stack=100000"),
+        "task.env.frame_stack=100000: the 100005 observations each of the 4 envs holds would take",
+    ),
+    "more envs than memory holds": (
+        (*ATARI, "task.env.num_envs=10000000"),
+        "task.env.num_envs=10000000, task.loss.rollout_steps=5",
+    ),
+    "more evaluation games than memory holds": (
+        (*ATARI, "task.evaluation.plays=100000000"),
+        "task.evaluation.plays=100000000, task.env.frame_stack=4: one step's input",
+    ),
     "upper-case game": ((*ATARI, "task.env.game=PONG"), "case-sensitive): Pong"),
     "snake-case game": ((*ATARI, "task.env.game=ms_pacman"), "case-sensitive): MsPacman"),
     "lower-case two-word game": ((*ATARI, "task.env.game=spaceinvaders"), "SpaceInvaders"),

@@ -18,7 +18,7 @@ import functools
 import logging
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -29,7 +29,7 @@ from torchrl.envs import InitTracker, TransformedEnv
 from tqdm import tqdm
 
 from edr.checks import interrupts
-from edr.checks.config import ConfigError, PositiveInt, check_memory
+from edr.checks.config import Allocation, ConfigError, PositiveInt, check_allocations
 from edr.models.dead_units import DeadUnits
 from edr.models.paac import PAACNetwork
 from edr.models.precision import Precision, choose_precision
@@ -108,8 +108,9 @@ def train_paac(
     _check_env(env, network)
     backend = env.resolved_backend()
     env_kwargs = _env_kwargs(env)
-    net, arguments, observation = _network(env_kwargs, network, env.frame_stack)
+    observation, actions = _probe(env_kwargs)
     _check_memory(env, loss.rollout_steps, evaluation.plays, observation)
+    net, arguments = _fresh_network(observation, actions, network, env.frame_stack)
     fingerprint = (
         rom_fingerprint(env.game) if env.env_id is None else f"{env.env_module}:{env.env_id}"
     )
@@ -183,7 +184,7 @@ def check_resumable(
     state = load_checkpoint(path)
     for key, kind in CHECKPOINT_PARTS.items():
         payload_part(path, state, key, kind, START_OVER)
-    fresh, _, _ = _network(_env_kwargs(env), network, env.frame_stack)
+    fresh = _network(_env_kwargs(env), network, env.frame_stack)
     check_weights(path, state["network"], fresh.state_dict(), START_OVER)
 
 
@@ -405,22 +406,58 @@ def _check_env(env: EnvSettings, network: NetworkSettings) -> None:
         raise ConfigError(f"task.env.{problem}")
 
 
+def _allocations(
+    env: EnvSettings, rollout_steps: int, plays: int, observation: tuple[int, ...]
+) -> list[Allocation]:
+    """What a run's sizes make it hold at once, for observations of ``observation`` (C, H, W):
+    the frames the training envs hold, one step's stacked input of the evaluation games (one env
+    per game), and the first convolution's weights (with their gradient and Adam's two moments)."""
+    frame = int(np.prod(observation)) * (2 if env.obs_dtype == "float16" else 4)  # bytes, at most
+    held = observations_held(rollout_steps, env.frame_stack)
+    stack = f"task.env.frame_stack={env.frame_stack}"
+    conv1 = env.frame_stack * observation[0] * 16 * 8 * 8 * 4  # PAAC's conv 16 8x8, float32
+    return [
+        Allocation(
+            f"task.env.num_envs={env.num_envs}, task.loss.rollout_steps={rollout_steps}, {stack}",
+            f"the {held} observations each of the {env.num_envs} envs holds",
+            env.num_envs * held * frame,
+        ),
+        Allocation(f"task.evaluation.plays={plays}, {stack}",
+                   f"one step's input of {plays} games played at once", plays * env.frame_stack * frame),
+        Allocation(stack, "the first convolution's weights, gradient and Adam moments", 4 * conv1),
+    ]  # fmt: skip
+
+
 def _check_memory(
     env: EnvSettings, rollout_steps: int, plays: int, observation: tuple[int, ...]
 ) -> None:
-    """Refuse env counts whose observations cannot fit in memory: the frames the training envs
-    hold at once, and one step's stacked input of the evaluation games (one env per game)."""
-    frame = int(np.prod(observation)) * (2 if env.obs_dtype == "float16" else 4)  # bytes, at most
-    held = observations_held(rollout_steps, env.frame_stack)
-    check_memory(
-        f"task.env.num_envs={env.num_envs}, task.loss.rollout_steps={rollout_steps}, "
-        f"task.env.frame_stack={env.frame_stack}",
-        f"the {held} observations each of the {env.num_envs} envs holds", env.num_envs * held * frame,
-    )  # fmt: skip
-    check_memory(
-        f"task.evaluation.plays={plays}, task.env.frame_stack={env.frame_stack}",
-        f"one step's input of {plays} games played at once", plays * env.frame_stack * frame,
-    )  # fmt: skip
+    """Refuse sizes whose arrays cannot fit in memory (:func:`_allocations`), before the
+    network is built."""
+    check_allocations(_allocations(env, rollout_steps, plays, observation))
+
+
+def _sizes_problem(values: dict[str, Any]) -> None:
+    """edr-run's check before the run's record: :func:`_check_memory` for the smallest
+    observation the settings give (84x84 frames; RGB 3 channels or gray 1, EDR's ON and OFF 2
+    at least), so a size that cannot fit is one line before any env or network is made."""
+    env_values, loss, evaluation = values["env"], values["loss"], values["evaluation"]
+    env = replace(EnvSettings(), **{
+        k: v for k, v in _settings_values(env_values).items()
+        if k in ("num_envs", "frame_stack", "obs_dtype")})  # fmt: skip
+    inputs = _settings_values(env_values).get("inputs", env.inputs)
+    fdr = _settings_values(env_values).get("fdr", env.fdr)
+    channels = (0 if inputs == "edr" else 3 if fdr == "rgb" else 1) + (0 if inputs == "fdr" else 2)
+    rollout_steps = _settings_values(loss).get("rollout_steps", LossSettings.rollout_steps)
+    plays = _settings_values(evaluation).get("plays", EvalSettings.plays)
+    _check_memory(env, rollout_steps, plays, (channels, 84, 84))
+
+
+def _settings_values(node: Any) -> dict[str, Any]:
+    """A settings group's values, as a dataclass or as the config's mapping gives them."""
+    return dict(node) if isinstance(node, Mapping) else vars(node)
+
+
+train_paac.settings_problem = _sizes_problem  # type: ignore[attr-defined]  # edr-run's check
 
 
 def _history_row(
@@ -450,24 +487,34 @@ def _env_kwargs(env: EnvSettings) -> dict[str, Any]:
     }
 
 
-def _network(
-    env_kwargs: dict[str, Any], network: NetworkSettings, frame_stack: int
-) -> tuple[PAACNetwork, dict[str, Any], tuple[int, ...]]:
-    """A fresh network for ``frame_stack`` frames of these envs and their actions; its
-    arguments; one observation's shape (C, H, W)."""
+def _probe(env_kwargs: dict[str, Any]) -> tuple[tuple[int, ...], int]:
+    """One observation's shape (C, H, W) and the action count of these envs (one env made)."""
     probe = make_atari_env(backend="single", **env_kwargs)
     observation = tuple(probe.observation_spec["observation"].shape[-3:])  # (C, H, W)
-    channels, actions = observation[0], probe.action_spec.shape[-1]
+    actions = probe.action_spec.shape[-1]
     probe.close()
+    return observation, actions
+
+
+def _fresh_network(
+    observation: tuple[int, ...], actions: int, network: NetworkSettings, frame_stack: int
+) -> tuple[PAACNetwork, dict[str, Any]]:
+    """A fresh network for ``frame_stack`` observations of ``observation`` (C, H, W) and
+    ``actions`` actions; its arguments."""
     arguments = {
-        "in_channels": frame_stack * channels,
+        "in_channels": frame_stack * observation[0],
         "num_actions": actions,
         "core": network.core,
         "init": network.init,
         "input_norm": network.input_norm,
         "frames": frame_stack,
     }
-    return PAACNetwork(**arguments), arguments, observation
+    return PAACNetwork(**arguments), arguments
+
+
+def _network(env_kwargs: dict[str, Any], network: NetworkSettings, frame_stack: int) -> PAACNetwork:
+    """A fresh network for ``frame_stack`` frames of these envs and their actions."""
+    return _fresh_network(*_probe(env_kwargs), network, frame_stack)[0]
 
 
 def _evaluate(
@@ -582,7 +629,7 @@ def _loaded(task: dict[str, Any], source: Path, saved: _Saved, reader: Reader) -
     env made), holding ``saved``'s weights (refused in one line naming ``source`` unless they
     are its keys and shapes), in the precision it trained in."""
     env = task["env"]
-    network, _, _ = _network(_env_kwargs(env), task["network"], env.frame_stack)
+    network = _network(_env_kwargs(env), task["network"], env.frame_stack)
     check_weights(source, saved.weights, network.state_dict(), reader.file_remedy)
     network.load_state_dict(saved.weights)
     # runs from before the precision setting trained in float32
