@@ -98,8 +98,8 @@ def _sweep_axes(cfg: DictConfig) -> dict[str, str]:
 
 def _atari_size(cfg: DictConfig, given: set[str]) -> list[str]:
     """An ALE game's run at the paper's tiny sweep's size, the values the command does not set:
-    debug=tiny's (2,000 env steps on 4 envs, two 100-step evaluation games) took 13.7 s of CPU
-    for Table 1's command, this 9.2 s (400 env steps on 2 envs, one 50-step game)."""
+    debug=tiny's (2,000 env steps on 4 envs, two 100-step evaluation games) took 13.7-14.1 s of
+    CPU for Table 1's command, this 8.6-9.5 s (200 env steps on 2 envs, one 50-step game)."""
     if "env_steps" not in cfg.task or cfg.task.env.preset == "none":
         return []
     return [o for o in ATARI_TINY if o.split("=", 1)[0] not in given]
