@@ -12,9 +12,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-# 200 agent steps per env on 2 envs: a lost life ends a training episode here, so Breakout has
+# 100 agent steps per env on 2 envs: a lost life ends a training episode here, so Breakout has
 # scores; one evaluation game a run (the table's spread is over the 2 seeds).
-ATARI_TINY = ("task.env_steps=400", "task.optim.lr_decay_env_steps=400", "task.env.num_envs=2",
+ATARI_TINY = ("task.env_steps=200", "task.optim.lr_decay_env_steps=200", "task.env.num_envs=2",
               "task.evaluation.plays=1", "task.evaluation.max_steps=50", "task.env.life_loss=true")  # fmt: skip
 LTC_TINY = ("backbone.widths=[4,4,4,4,4]", "backbone.fc=16")
 TINY_SWEEPS = {
