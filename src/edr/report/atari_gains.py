@@ -132,8 +132,9 @@ def _random_play_records(paths: Iterable[Path]) -> Iterable[tuple[str, float]]:
 def _random_cell(means: list[float] | None) -> str:
     if not means:
         return "not measured"
-    spread = f" ({min(means):,.0f}-{max(means):,.0f})" if len(means) > 1 else ""
-    return f"{np.mean(means):,.0f}{spread}, {len(means)} x 30 games"
+    places = 1 if max(abs(m) for m in means) < 100 else 0  # Breakout's 1.2, Pong's -20.3
+    spread = f" ({min(means):,.{places}f} to {max(means):,.{places}f})" if len(means) > 1 else ""
+    return f"{np.mean(means):,.{places}f}{spread}, {len(means)} x 30 games"
 
 
 def _pairs_cell(column: dict[str, Any]) -> str:
