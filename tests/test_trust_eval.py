@@ -143,16 +143,17 @@ class _Foreign:
         return (datetime.date, (2020, 1, 1))
 
 
-@pytest.mark.parametrize(
-    ("payload", "said"),
-    [
-        (torch.zeros(3), "network.pt holds Tensor, not what edr-run writes"),
-        ({"model": {}, "epoch": 3}, "network.pt: 'state_dict' is missing, expected dict"),
-        ({"state_dict": {"w": torch.zeros(2)}, "arguments": {}},
-         "network.pt holds the weights of another network than its run.json describes"),
-        ({"x": _Foreign()}, "network.pt cannot be read (it holds Python objects"),
-    ],
-)  # fmt: skip
+# network.pt files that are not a run's network, and what a refusal of each says
+FOREIGN_NETWORKS = [
+    (torch.zeros(3), "network.pt holds Tensor, not what edr-run writes"),
+    ({"model": {}, "epoch": 3}, "network.pt: 'state_dict' is missing, expected dict"),
+    ({"state_dict": {"w": torch.zeros(2)}, "arguments": {}},
+     "network.pt holds the weights of another network than its run.json describes"),
+    ({"x": _Foreign()}, "network.pt cannot be read (it holds Python objects"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("payload", "said"), FOREIGN_NETWORKS)
 def test_a_foreign_network_file_is_refused(payload, said, folder, capsys) -> None:
     torch.save(payload, folder / "network.pt")
     line = _refused(folder, capsys)
@@ -425,17 +426,13 @@ def test_load_network_refuses_a_record_that_is_not_one_and_a_held_folder(
 @pytest.mark.parametrize(
     ("payload", "said"),
     [
-        (torch.zeros(3), "network.pt holds Tensor, not what edr-run writes"),
-        ({"model": {}, "epoch": 3}, "network.pt: 'state_dict' is missing, expected dict"),
-        ({"state_dict": {"w": torch.zeros(2)}, "arguments": {}},
-         "network.pt holds the weights of another network than its run.json describes"),
+        *FOREIGN_NETWORKS,
         ({"state_dict": {}, "arguments": [1]}, "network.pt: 'arguments' is list, expected dict"),
-        ({"x": _Foreign()}, "network.pt cannot be read (it holds Python objects"),
         (b"", "network.pt cannot be read"),
         ("half", "network.pt cannot be read"),
     ],
-    ids=["a bare tensor", "no state_dict", "another network's keys", "arguments a list",
-         "a pickled object", "an empty file", "cut in half"],
+    ids=["a bare tensor", "no state_dict", "another network's keys", "a pickled object",
+         "arguments a list", "an empty file", "cut in half"],
 )  # fmt: skip
 def test_load_network_refuses_a_foreign_network_file(payload, said, folder) -> None:
     path = folder / "network.pt"
