@@ -142,3 +142,10 @@ def test_edr_eval_says_what_it_does_and_refuses_a_folder_without_a_run(tmp_path,
     assert ended.value.code == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("edr-eval: ") and str(tmp_path) in err and len(err.splitlines()) == 1
+    with pytest.raises(SystemExit) as ended:  # a folder that is not there: said before torch loads
+        evaluate.main([str(tmp_path / "no_such_run")])
+    assert ended.value.code == 2
+    assert capsys.readouterr().err == (
+        f"edr-eval: {tmp_path / 'no_such_run'}: no such folder: name a run folder edr-run wrote "
+        "(it holds run.json)\n"
+    )

@@ -60,6 +60,9 @@ def main(argv: list[str] | None = None) -> None:
         parser.exit(2, f"{parser.prog}: --plays={args.plays}: expected a number >= 1\n")
     if args.seed is not None and (expected := mismatch(args.seed, Seed)):
         parser.exit(2, f"{parser.prog}: --seed={args.seed}: expected {expected}\n")
+    if not Path(args.run_dir).exists():
+        parser.exit(2, f"{parser.prog}: {args.run_dir}: no such folder: name a run folder "
+                       "edr-run wrote (it holds run.json)\n")  # fmt: skip
     from edr.tasks.atari import evaluate_checkpoint  # torch, torchrl and the envs load here
 
     try:
