@@ -462,36 +462,20 @@ def test_load_network_refuses_the_other_inputs_network_and_a_recognition_model(f
 
 # ---- a refused resume through Hydra: run.log and .hydra/ wait for the folder's check ----------
 @pytest.fixture
-def edr_run(monkeypatch):
-    """``edr_run(*argv)``: edr-run's main in this process, Hydra's job logging and files as the
-    command has them; its exit status. Logging and Hydra are left as they were found."""
-    import logging
-
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.core.hydra_config import HydraConfig
-
-    import edr.run
-
-    root = logging.getLogger()
-    handlers, level = root.handlers[:], root.level
-    hydra_config = HydraConfig.instance().cfg
+def edr_run():
+    """``edr_run(*argv)``: edr-run in a process of its own, Hydra's job logging and files as the
+    command has them (in this process Hydra's logging setup would close pytest's own log
+    handlers); its exit status, its output printed here for capsys."""
 
     def call(*argv: str) -> int:
-        monkeypatch.setattr(sys, "argv", ["edr-run", *argv])
-        try:
-            edr.run.main()
-        except SystemExit as stopped:
-            return int(stopped.code or 0)
-        return 0
+        done = subprocess.run(
+            [sys.executable, "-c", "from edr.run import main; main()", *argv],
+            capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        print(done.stdout + done.stderr)
+        return done.returncode
 
-    yield call
-    for handler in root.handlers:
-        if handler not in handlers:
-            handler.close()
-    root.handlers[:] = handlers
-    root.setLevel(level)
-    GlobalHydra.instance().clear()
-    HydraConfig.instance().cfg = hydra_config
+    return call
 
 
 def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:

@@ -106,8 +106,7 @@ def train_paac(
     logits' spread, the time per phase and the mean score of the last 20 training episodes.
     """
     _check_env(env, network)
-    backend = env.resolved_backend()
-    env_kwargs = _env_kwargs(env)
+    backend, env_kwargs = env.resolved_backend(), _env_kwargs(env)
     observation, actions = _probe(env_kwargs)
     _check_memory(env, loss.rollout_steps, evaluation.plays, observation)
     net, arguments = _fresh_network(observation, actions, network, env.frame_stack)
