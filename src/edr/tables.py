@@ -51,8 +51,8 @@ from edr.store.atomic import write_text_atomic
 # paper/ as committed: the largest-scale records there are (each folder's command in
 # results/learning/README.md) and the tiny sweeps of Table 2 and Figure 3b (make paper runs them).
 LEARNING = ("table1_pong", "table1_pong_5m", "table1_centipede", "table1_breakout",
-            "table1_mspacman", "table1_qbert", "learnable_edr", "kth_demo", "kth_real",
-            "kth_person", "ucf101_real", "speed_classes_demo", "dvs_transfer_demo",
+            "table1_mspacman", "table1_qbert", "table1_seaquest", "learnable_edr", "kth_demo",
+            "kth_real", "kth_person", "ucf101_real", "speed_classes_demo", "dvs_transfer_demo",
             "learnable_edr_real", "event_camera_real", "event_camera_recordings")  # fmt: skip
 COMMITTED_SCOPE = (*(Path("results/learning", name) for name in LEARNING),
                    Path("results/sweeps/tiny/table2"), Path("results/sweeps/tiny/demo"))  # fmt: skip
