@@ -439,12 +439,10 @@ def _sizes_problem(values: dict[str, Any]) -> None:
     """edr-run's check before the run's record: :func:`_check_memory` for the smallest
     observation the settings give (84x84 frames; RGB 3 channels or gray 1, EDR's ON and OFF 2
     at least), so a size that cannot fit is one line before any env or network is made."""
-    env_values, loss, evaluation = values["env"], values["loss"], values["evaluation"]
+    given, loss, evaluation = _settings_values(values["env"]), values["loss"], values["evaluation"]
     env = replace(EnvSettings(), **{
-        k: v for k, v in _settings_values(env_values).items()
-        if k in ("num_envs", "frame_stack", "obs_dtype")})  # fmt: skip
-    inputs = _settings_values(env_values).get("inputs", env.inputs)
-    fdr = _settings_values(env_values).get("fdr", env.fdr)
+        k: v for k, v in given.items() if k in ("num_envs", "frame_stack", "obs_dtype")})  # fmt: skip
+    inputs, fdr = given.get("inputs", env.inputs), given.get("fdr", env.fdr)
     channels = (0 if inputs == "edr" else 3 if fdr == "rgb" else 1) + (0 if inputs == "fdr" else 2)
     rollout_steps = _settings_values(loss).get("rollout_steps", LossSettings.rollout_steps)
     plays = _settings_values(evaluation).get("plays", EvalSettings.plays)
